@@ -1,0 +1,128 @@
+"""The humanoid56 body: loading, and the maps between joint names, qpos/qvel indices and angle vectors.
+
+Layout of a configuration (``qpos``, 57 values): base position (3, metres, world frame), base orientation
+(4, unit quaternion w, x, y, z, world from base), then the 50 hinge angles (radians) in model order.
+Velocities (``qvel``, 56 values): base linear velocity (3, world frame), base angular velocity (3, base
+frame, MuJoCo's convention for free joints), then the 50 angle rates.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from harness.errors import ModelError
+
+DEFAULT_MODEL_PATH = Path(__file__).resolve().parents[2] / "models" / "humanoid56.xml"
+N_ANGLES = 50
+NQ = 7 + N_ANGLES
+NV = 6 + N_ANGLES
+
+
+def load_mjmodel(path: str | Path | None = None) -> mujoco.MjModel:
+    """Compile a MuJoCo model file, with errors that name the file and the problem in one line."""
+    path = Path(path) if path is not None else DEFAULT_MODEL_PATH
+    if not path.is_file():
+        raise ModelError(f"{path}: no such model file")
+    try:
+        return mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as exc:
+        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else "cannot be compiled"
+        raise ModelError(f"{path}: {first_line}") from None
+
+
+class BodyModel:
+    """A compiled humanoid with one free joint at the root and 50 hinges, and its index maps.
+
+    Holds one scratch ``MjData`` for kinematics; not safe to share between threads.
+    """
+
+    def __init__(self, model: mujoco.MjModel, path: Path | None = None):
+        self.model = model
+        self.path = path
+        self.data = mujoco.MjData(model)
+        self._check_structure()
+        hinge_ids = np.arange(1, model.njnt)
+        self.joint_names: tuple[str, ...] = tuple(
+            mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in hinge_ids
+        )
+        self.body_names: tuple[str, ...] = tuple(
+            mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) for b in range(model.nbody)
+        )
+        self.angle_qpos_index = model.jnt_qposadr[hinge_ids].astype(int)
+        self.angle_dof_index = model.jnt_dofadr[hinge_ids].astype(int)
+        self.angle_body = model.jnt_bodyid[hinge_ids].astype(int)
+        self.lower = model.jnt_range[hinge_ids, 0].copy()
+        self.upper = model.jnt_range[hinge_ids, 1].copy()
+        self.root_body = int(model.jnt_bodyid[0])
+        # Geoms that belong to the humanoid (everything not attached to the world body).
+        self.body_geoms = np.flatnonzero(model.geom_bodyid > 0)
+
+    @classmethod
+    def load(cls, path: str | Path | None = None) -> "BodyModel":
+        path = Path(path) if path is not None else DEFAULT_MODEL_PATH
+        return cls(load_mjmodel(path), path)
+
+    def _check_structure(self) -> None:
+        m = self.model
+        where = f"{self.path}: " if self.path else ""
+        if m.njnt < 1 or m.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE:
+            raise ModelError(f"{where}the first joint must be a free joint at the root body")
+        hinges = m.jnt_type[1:] == mujoco.mjtJoint.mjJNT_HINGE
+        if m.njnt - 1 != N_ANGLES or not np.all(hinges):
+            raise ModelError(
+                f"{where}expected 1 free joint and {N_ANGLES} hinges, found {m.njnt - 1} other joints "
+                f"of which {int(hinges.sum())} hinges"
+            )
+        if m.nq != NQ or m.nv != NV:
+            raise ModelError(f"{where}expected nq={NQ}, nv={NV}, found nq={m.nq}, nv={m.nv}")
+        if not np.all(m.jnt_limited[1:]):
+            unlimited = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
+                         for j in np.flatnonzero(~m.jnt_limited.astype(bool))[1:] if j > 0]
+            raise ModelError(f"{where}hinges without a range: {', '.join(unlimited)}")
+
+    # --- name and index maps -------------------------------------------------------------------
+
+    def angle_index(self, joint_name: str) -> int:
+        """Position of a hinge in the 50-angle vector."""
+        try:
+            return self.joint_names.index(joint_name)
+        except ValueError:
+            raise KeyError(f"unknown joint {joint_name!r}; joints are named <body>_<axis>, "
+                           f"for example {self.joint_names[0]!r}") from None
+
+    def body_id(self, body_name: str) -> int:
+        bid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, body_name)
+        if bid < 0:
+            raise KeyError(f"unknown body {body_name!r}; bodies: {', '.join(self.body_names[1:])}")
+        return int(bid)
+
+    def angles(self, qpos: np.ndarray) -> np.ndarray:
+        """The 50 hinge angles of configurations ``(..., 57) -> (..., 50)``, radians."""
+        return np.asarray(qpos)[..., self.angle_qpos_index]
+
+    def qpos(self, angles: np.ndarray, base_pos=None, base_quat=None) -> np.ndarray:
+        """Assemble configurations from angles ``(..., 50)``; the base defaults to the model's zero pose."""
+        angles = np.asarray(angles, dtype=float)
+        out = np.broadcast_to(self.model.qpos0, angles.shape[:-1] + (NQ,)).copy()
+        out[..., self.angle_qpos_index] = angles
+        if base_pos is not None:
+            out[..., 0:3] = base_pos
+        if base_quat is not None:
+            out[..., 3:7] = base_quat
+        return out
+
+    def zero_qpos(self) -> np.ndarray:
+        """The standing reference pose (all angles zero, soles on the floor)."""
+        return self.model.qpos0.copy()
+
+    def clip_angles(self, angles: np.ndarray) -> np.ndarray:
+        return np.clip(angles, self.lower, self.upper)
+
+    def random_angles(self, rng: np.random.Generator, n: int | None = None, scale: float = 1.0) -> np.ndarray:
+        """Angles drawn uniformly within ``scale`` times the joint ranges (around the range centre)."""
+        shape = (N_ANGLES,) if n is None else (n, N_ANGLES)
+        mid, half = 0.5 * (self.lower + self.upper), 0.5 * (self.upper - self.lower)
+        return mid + scale * half * rng.uniform(-1.0, 1.0, size=shape)

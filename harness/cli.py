@@ -1,0 +1,71 @@
+"""Command line: ``python -m harness <command>`` (also installed as ``harness``).
+
+Every command turns the package's own errors (``HarnessError``) into one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+
+from harness.errors import HarnessError
+
+_COMMANDS: dict[str, tuple[Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int]]] = {}
+
+
+def command(name: str, add_arguments: Callable[[argparse.ArgumentParser], None]):
+    """Register ``run(args) -> exit code`` as a subcommand."""
+    def register(run):
+        _COMMANDS[name] = (add_arguments, run)
+        return run
+    return register
+
+
+def _model_info_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", default=None, help="model file (default: models/humanoid56.xml)")
+
+
+@command("model-info", _model_info_args)
+def _model_info(args: argparse.Namespace) -> int:
+    """Print the body model's joints, ranges and standing height."""
+    import numpy as np
+
+    from harness.body import BodyModel, geom_z_range
+
+    body = BodyModel.load(args.model)
+    z = geom_z_range(body, body.zero_qpos())
+    print(f"{body.path}: nq={body.model.nq} nv={body.model.nv} bodies={body.model.nbody - 1} "
+          f"hinges={len(body.joint_names)} height={z[:, 1].max():.3f} m")
+    for name, lo, hi in zip(body.joint_names, np.rad2deg(body.lower), np.rad2deg(body.upper)):
+        print(f"  {name:14s} [{lo:7.1f}, {hi:6.1f}] deg")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    _load_command_modules()
+    parser = argparse.ArgumentParser(prog="harness", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, (add_arguments, run) in sorted(_COMMANDS.items()):
+        p = sub.add_parser(name, help=(run.__doc__ or "").strip().splitlines()[0] if run.__doc__ else None)
+        add_arguments(p)
+        p.set_defaults(_run=run)
+    return parser
+
+
+def _load_command_modules() -> None:
+    """Modules that register commands; imported here so that ``--help`` lists them all."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except HarnessError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:  # output piped into head and closed early
+        return 0
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
