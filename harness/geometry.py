@@ -1,0 +1,124 @@
+"""Rotations as unit quaternions ``(..., 4)`` in MuJoCo's order (w, x, y, z), vectorised over leading axes.
+
+A quaternion ``q`` maps vectors from a child frame into its parent frame: ``v_parent = rotate(q, v_child)``.
+Angular velocities are rotation vectors per second (axis times rate).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def normalize(q: np.ndarray) -> np.ndarray:
+    q = np.asarray(q, dtype=float)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a * b`` (first rotate by ``b``, then by ``a``)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def conjugate(q: np.ndarray) -> np.ndarray:
+    return np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(..., 3, 3)`` of unit quaternions."""
+    w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=-2)
+
+
+def from_matrix(mat: np.ndarray) -> np.ndarray:
+    """Unit quaternions (w >= 0) of rotation matrices ``(..., 3, 3)``, by the largest-eigenvector method."""
+    mat = np.asarray(mat, dtype=float)
+    m00, m01, m02 = mat[..., 0, 0], mat[..., 0, 1], mat[..., 0, 2]
+    m10, m11, m12 = mat[..., 1, 0], mat[..., 1, 1], mat[..., 1, 2]
+    m20, m21, m22 = mat[..., 2, 0], mat[..., 2, 1], mat[..., 2, 2]
+    # Bar-Itzhack's symmetric 4x4 matrix: its top eigenvector is the quaternion, robust for any rotation.
+    k = np.stack([
+        np.stack([m00 - m11 - m22, m10 + m01, m20 + m02, m21 - m12], axis=-1),
+        np.stack([m10 + m01, m11 - m00 - m22, m21 + m12, m02 - m20], axis=-1),
+        np.stack([m20 + m02, m21 + m12, m22 - m00 - m11, m10 - m01], axis=-1),
+        np.stack([m21 - m12, m02 - m20, m10 - m01, m00 + m11 + m22], axis=-1),
+    ], axis=-2) / 3.0
+    _, vec = np.linalg.eigh(k)
+    xyzw = vec[..., -1]
+    q = np.concatenate([xyzw[..., 3:4], xyzw[..., :3]], axis=-1)
+    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
+
+
+def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``(..., 3)`` by quaternions ``(..., 4)`` (broadcasting)."""
+    q, v = np.asarray(q, dtype=float), np.asarray(v, dtype=float)
+    w, u = q[..., :1], q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def exp(rotvec: np.ndarray) -> np.ndarray:
+    """Quaternion of a rotation vector ``(..., 3)`` (axis times angle, radians)."""
+    rotvec = np.asarray(rotvec, dtype=float)
+    angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    # sin(x/2)/x, with its series near zero.
+    scale = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 1e-8, angle, 1.0), 0.5 - angle**2 / 48.0)
+    return np.concatenate([np.cos(half), scale * rotvec], axis=-1)
+
+
+def log(q: np.ndarray) -> np.ndarray:
+    """Rotation vector ``(..., 3)`` of unit quaternions, angle in [0, pi] (the shorter way round)."""
+    q = np.asarray(q, dtype=float)
+    q = q * np.where(q[..., :1] < 0, -1.0, 1.0)
+    s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, q[..., :1])
+    scale = np.where(s > 1e-12, angle / np.where(s > 1e-12, s, 1.0), 2.0 / np.maximum(q[..., :1], 1e-300))
+    return scale * q[..., 1:]
+
+
+def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation angle (radians, in [0, pi]) of ``a^-1 b``."""
+    return np.linalg.norm(log(multiply(conjugate(a), b)), axis=-1)
+
+
+def slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Spherical interpolation from ``a`` (t = 0) to ``b`` (t = 1), the shorter way round."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    t = np.asarray(t, dtype=float)[..., None]
+    b = b * np.where(np.sum(a * b, axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    return normalize(multiply(a, exp(t * log(multiply(conjugate(a), b)))))
+
+
+def weighted_mean(q: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Weighted average of quaternions ``(N, 4)``: the top eigenvector of ``sum w q q^T`` (Markley et al., 2007).
+
+    Sign-invariant (q and -q are the same rotation); returns w >= 0.
+    """
+    q = np.asarray(q, dtype=float)
+    w = np.ones(len(q)) if weights is None else np.asarray(weights, dtype=float)
+    _, vec = np.linalg.eigh(np.einsum("n,ni,nj->ij", w, q, q))
+    mean = vec[:, -1]
+    return mean * (1.0 if mean[0] >= 0 else -1.0)
+
+
+def yaw(angle: np.ndarray) -> np.ndarray:
+    """Quaternions of rotations about world z by ``angle`` (radians)."""
+    half = 0.5 * np.asarray(angle, dtype=float)
+    zero = np.zeros_like(half)
+    return np.stack([np.cos(half), zero, zero, np.sin(half)], axis=-1)
+
+
+def heading(q: np.ndarray) -> np.ndarray:
+    """Heading (radians) of a z-up body: the world angle of its forward axis (x) projected on the floor."""
+    fwd = rotate(q, np.array([1.0, 0.0, 0.0]))
+    return np.arctan2(fwd[..., 1], fwd[..., 0])

@@ -1,0 +1,173 @@
+"""``Motion``: one demonstration of a motion primitive, as humanoid56 configurations over time.
+
+``qpos`` is ``(T, 57)``: base position (m, world), base quaternion (w, x, y, z, world from base), 50 hinge
+angles (rad) in the order of ``docs/humanoid56.md``. Velocities are central differences (one-sided at the
+ends); the base's angular velocity is differentiated on the rotation group (``log(q_{t-1}^-1 q_{t+1})``),
+which is exact for a constant body-frame rate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from harness import geometry
+from harness.errors import HarnessError
+from harness.io import save_npz_atomic
+
+
+class MotionError(HarnessError):
+    """A motion that is malformed or cannot be read."""
+
+
+@dataclass(frozen=True)
+class MotionVelocities:
+    """Velocities of a motion, all ``(T, k)`` per second.
+
+    angles: ``(T, 50)`` rad/s. base_linear_world: ``(T, 3)`` m/s in the world frame.
+    base_linear: ``(T, 3)`` m/s and base_angular: ``(T, 3)`` rad/s, both in the base frame.
+    """
+
+    angles: np.ndarray
+    base_linear_world: np.ndarray
+    base_linear: np.ndarray
+    base_angular: np.ndarray
+
+    def qvel(self) -> np.ndarray:
+        """MuJoCo's ``qvel`` layout ``(T, 56)``: world linear, base-frame angular, angle rates."""
+        return np.concatenate([self.base_linear_world, self.base_angular, self.angles], axis=1)
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A labelled demonstration: ``qpos (T, 57)`` at ``fps`` frames per second.
+
+    label: the motion primitive ("walk", ...). subject: who performed it. demo: an id unique within
+    (label, subject). source: where it came from ("procedural", "bvh:09_01.bvh", ...).
+    """
+
+    qpos: np.ndarray
+    fps: float
+    label: str
+    subject: str = "0"
+    demo: str = "0"
+    source: str = "procedural"
+
+    def __post_init__(self):
+        qpos = np.array(self.qpos, dtype=float)
+        if qpos.ndim != 2 or qpos.shape[1] != 57:
+            raise MotionError(f"motion {self.label!r}: qpos must be (T, 57), got {qpos.shape}")
+        if len(qpos) < 2:
+            raise MotionError(f"motion {self.label!r}: needs at least 2 frames, got {len(qpos)}")
+        if not np.isfinite(qpos).all():
+            raise MotionError(f"motion {self.label!r}: qpos has NaN or infinite values")
+        if not (np.isfinite(self.fps) and self.fps > 0):
+            raise MotionError(f"motion {self.label!r}: fps must be positive, got {self.fps}")
+        norms = np.linalg.norm(qpos[:, 3:7], axis=1)
+        if np.any(np.abs(norms - 1.0) > 1e-6):
+            raise MotionError(f"motion {self.label!r}: base quaternions must be unit length")
+        qpos.setflags(write=False)
+        object.__setattr__(self, "qpos", qpos)
+        object.__setattr__(self, "fps", float(self.fps))
+
+    # --- views ----------------------------------------------------------------------------------
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.qpos)
+
+    @property
+    def duration(self) -> float:
+        return (self.n_frames - 1) / self.fps
+
+    @property
+    def angles(self) -> np.ndarray:
+        return self.qpos[:, 7:]
+
+    @property
+    def base_pos(self) -> np.ndarray:
+        return self.qpos[:, :3]
+
+    @property
+    def base_quat(self) -> np.ndarray:
+        return self.qpos[:, 3:7]
+
+    @property
+    def times(self) -> np.ndarray:
+        return np.arange(self.n_frames) / self.fps
+
+    @cached_property
+    def velocities(self) -> MotionVelocities:
+        """Finite-difference velocities (computed once, then cached)."""
+        return _velocities(self.qpos, self.fps)
+
+    # --- transformations ------------------------------------------------------------------------
+
+    def replace(self, **changes) -> "Motion":
+        fields = dict(qpos=self.qpos, fps=self.fps, label=self.label, subject=self.subject, demo=self.demo,
+                      source=self.source)
+        fields.update(changes)
+        return Motion(**fields)
+
+    def slice(self, start: int, stop: int) -> "Motion":
+        if not 0 <= start < stop <= self.n_frames:
+            raise MotionError(f"frame range [{start}, {stop}) is outside the motion's {self.n_frames} frames")
+        return self.replace(qpos=self.qpos[start:stop])
+
+    def resample(self, fps: float) -> "Motion":
+        """The same motion at another frame rate over the same time span (linear in angles and position,
+        spherical in the base orientation)."""
+        if not (np.isfinite(fps) and fps > 0):
+            raise MotionError(f"fps must be positive, got {fps}")
+        n = int(np.floor(self.duration * fps + 1e-9)) + 1
+        if n < 2:
+            raise MotionError(f"motion of {self.duration:.3f} s has fewer than 2 frames at {fps} fps")
+        t = np.arange(n) / fps * self.fps                 # fractional source frame index
+        i0 = np.minimum(np.floor(t).astype(int), self.n_frames - 2)
+        a = (t - i0)[:, None]
+        q0, q1 = self.qpos[i0], self.qpos[i0 + 1]
+        out = (1.0 - a) * q0 + a * q1
+        out[:, 3:7] = geometry.slerp(q0[:, 3:7], q1[:, 3:7], a[:, 0])
+        return self.replace(qpos=out, fps=fps)
+
+    # --- files ----------------------------------------------------------------------------------
+
+    def save(self, path: str | Path) -> None:
+        save_npz_atomic(path, {
+            "qpos": np.asarray(self.qpos), "fps": np.array(self.fps), "label": np.array(self.label),
+            "subject": np.array(self.subject), "demo": np.array(self.demo), "source": np.array(self.source),
+        })
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Motion":
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                return cls(qpos=z["qpos"], fps=float(z["fps"]), label=str(z["label"]), subject=str(z["subject"]),
+                           demo=str(z["demo"]), source=str(z["source"]))
+        except FileNotFoundError:
+            raise MotionError(f"{path}: no such motion file") from None
+        except (KeyError, ValueError, OSError) as exc:
+            raise MotionError(f"{path}: not a motion file ({exc})") from None
+
+
+def _central_difference(x: np.ndarray, dt: float) -> np.ndarray:
+    return np.gradient(x, dt, axis=0, edge_order=1)
+
+
+def _velocities(qpos: np.ndarray, fps: float) -> MotionVelocities:
+    dt = 1.0 / fps
+    quat = qpos[:, 3:7]
+    angles = _central_difference(qpos[:, 7:], dt)
+    lin_world = _central_difference(qpos[:, :3], dt)
+    # Body-frame angular velocity: log(q_a^-1 q_b) / (time between a and b), central inside.
+    prev = np.concatenate([quat[:1], quat[:-1]])
+    nxt = np.concatenate([quat[1:], quat[-1:]])
+    span = np.full(len(quat), 2.0 * dt)
+    span[0] = span[-1] = dt
+    ang = geometry.log(geometry.multiply(geometry.conjugate(prev), nxt)) / span[:, None]
+    lin_base = geometry.rotate(geometry.conjugate(quat), lin_world)
+    return MotionVelocities(angles, lin_world, lin_base, ang)

@@ -1,0 +1,97 @@
+import mujoco
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from harness import geometry as g
+from harness.pinhole import CameraError, Intrinsics, in_image, project, projection_jacobian
+
+
+def _random_quats(rng, n):
+    return g.normalize(rng.normal(size=(n, 4)))
+
+
+def _scipy(q):
+    return Rotation.from_quat(q[..., [1, 2, 3, 0]])
+
+
+def test_matrix_and_rotation_match_scipy(rng):
+    q = _random_quats(rng, 50)
+    v = rng.normal(size=(50, 3))
+    np.testing.assert_allclose(g.to_matrix(q), _scipy(q).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(g.rotate(q, v), _scipy(q).apply(v), atol=1e-12)
+    back = g.from_matrix(g.to_matrix(q))
+    np.testing.assert_allclose(np.abs(np.sum(back * q, axis=1)), 1.0, atol=1e-12)
+
+
+def test_multiply_composes_like_mujoco(rng):
+    a, b = _random_quats(rng, 2)
+    res = np.empty(4)
+    mujoco.mju_mulQuat(res, a, b)
+    np.testing.assert_allclose(g.multiply(a, b), res, atol=1e-15)
+
+
+def test_exp_log_roundtrip_and_scipy(rng):
+    rv = rng.normal(size=(40, 3))
+    rv *= (np.pi * 0.99 / np.maximum(np.linalg.norm(rv, axis=1), np.pi))[:, None]  # angles below pi
+    q = g.exp(rv)
+    np.testing.assert_allclose(g.log(q), rv, atol=1e-10)
+    np.testing.assert_allclose(np.abs(np.sum(q * _scipy_q(rv), axis=1)), 1.0, atol=1e-12)
+    tiny = np.array([[1e-12, 0, 0]])
+    np.testing.assert_allclose(g.log(g.exp(tiny)), tiny, atol=1e-20)
+
+
+def _scipy_q(rv):
+    xyzw = Rotation.from_rotvec(rv).as_quat()
+    return xyzw[:, [3, 0, 1, 2]]
+
+
+def test_slerp_endpoints_and_midpoint(rng):
+    a, b = _random_quats(rng, 2)
+    np.testing.assert_allclose(np.abs(g.slerp(a, b, 0.0) @ a), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.abs(g.slerp(a, b, 1.0) @ b), 1.0, atol=1e-12)
+    mid = g.slerp(a, b, 0.5)
+    assert np.isclose(g.angle_between(a, mid), g.angle_between(mid, b), atol=1e-12)
+
+
+def test_weighted_mean_matches_scipy_and_ignores_sign(rng):
+    base = _random_quats(rng, 1)[0]
+    qs = g.normalize(base + 0.1 * rng.normal(size=(30, 4)))
+    w = rng.random(30)
+    flipped = qs * np.where(rng.random(30) < 0.5, -1, 1)[:, None]
+    ours = g.weighted_mean(flipped, w)
+    ref = _scipy(qs).mean(weights=w).as_quat()[[3, 0, 1, 2]]
+    assert abs(ours @ ref) > 1 - 1e-10
+
+
+def test_heading_and_yaw():
+    assert np.isclose(g.heading(g.yaw(0.7)), 0.7)
+    assert np.isclose(g.heading(g.multiply(g.yaw(-2.0), g.exp([0.1, 0.2, 0.0]))), -2.0, atol=0.05)
+
+
+def test_projection_and_jacobian_against_finite_differences(rng):
+    intr = Intrinsics.from_fov(45.0, 640, 480)
+    pts = rng.normal(size=(20, 3)) + [0, 0, 4]
+    jac = projection_jacobian(intr, pts)
+    h = 1e-6
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = h
+        fd = (project(intr, pts + d) - project(intr, pts - d)) / (2 * h)
+        np.testing.assert_allclose(jac[:, :, k], fd, rtol=1e-6, atol=1e-6)
+
+
+def test_intrinsics_match_mujoco_fovy():
+    intr = Intrinsics.from_fov(45.0, 640, 480)
+    # A point on the top edge of the vertical field of view projects to v = 0.
+    z = 3.0
+    y = -z * np.tan(np.deg2rad(22.5))
+    assert np.isclose(project(intr, np.array([0.0, y, z]))[1], 0.0)
+    assert in_image(intr, np.array([320.0, 0.0])) and not in_image(intr, np.array([640.0, 10.0]))
+    assert Intrinsics.from_array(intr.as_array()) == intr
+
+
+@pytest.mark.parametrize("args", [(45, 0, 480), (45, 640, -1), (0, 640, 480), (180, 640, 480)])
+def test_bad_intrinsics(args):
+    with pytest.raises(CameraError):
+        Intrinsics.from_fov(*args)
