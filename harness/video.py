@@ -1,0 +1,97 @@
+"""Offscreen rendering of the humanoid and video files (MP4 or GIF by extension), for people to look at.
+
+``MUJOCO_GL=egl`` renders on the CPU through Mesa when there is no GPU (the Makefile sets it).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from harness.errors import HarnessError
+from harness.io import write_atomic
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+class VideoError(HarnessError):
+    """A video that cannot be written."""
+
+
+def write_video(path: str | Path, frames: Iterable[np.ndarray], fps: float) -> int:
+    """Write RGB frames ``(H, W, 3) uint8`` to ``.mp4`` (OpenCV, mp4v) or ``.gif`` (Pillow), atomically.
+
+    Returns the number of frames written.
+    """
+    import cv2
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".mp4", ".gif"):
+        raise VideoError(f"{path}: video files must end in .mp4 or .gif")
+    frames = list(frames)
+    if not frames:
+        raise VideoError(f"{path}: no frames to write")
+    if suffix == ".gif":
+        from PIL import Image
+
+        images = [Image.fromarray(f) for f in frames]
+
+        def write(fh):
+            images[0].save(fh, format="GIF", save_all=True, append_images=images[1:],
+                           duration=int(round(1000.0 / fps)), loop=0)
+        write_atomic(path, write)
+        return len(frames)
+    h, w = frames[0].shape[:2]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp.mp4")
+    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h))
+    if not writer.isOpened():
+        raise VideoError(f"{path}: OpenCV cannot open an MP4 writer")
+    try:
+        for f in frames:
+            writer.write(cv2.cvtColor(np.ascontiguousarray(f), cv2.COLOR_RGB2BGR))
+    finally:
+        writer.release()
+    os.replace(tmp, path)
+    return len(frames)
+
+
+def add_spheres(scene: mujoco.MjvScene, centres: np.ndarray, radius: float, rgba) -> None:
+    """Append small spheres (decoration only, not part of the model) to a scene about to be rendered."""
+    for c in np.asarray(centres, dtype=float).reshape(-1, 3):
+        if scene.ngeom >= scene.maxgeom:
+            return
+        mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE, np.array([radius, 0, 0]),
+                            c, np.eye(3).ravel(), np.asarray(rgba, dtype=np.float32))
+        scene.ngeom += 1
+
+
+def render_motion(model: mujoco.MjModel, qpos: np.ndarray, width: int = 480, height: int = 480,
+                  distance: float = 4.0, azimuth: float = 150.0, elevation: float = -12.0,
+                  follow: bool = True, spheres: np.ndarray | None = None, sphere_radius: float = 0.025,
+                  sphere_rgba=(0.1, 0.8, 1.0, 1.0)) -> Iterator[np.ndarray]:
+    """Yield RGB frames of configurations ``qpos (T, 57)`` seen by a free camera.
+
+    The camera looks at the pelvis (``follow``) or at the first frame's pelvis; azimuth and elevation are
+    MuJoCo's free-camera angles in degrees. ``spheres`` ``(T, K, 3)`` are drawn as extra world-frame dots
+    (for example a source skeleton's joints beside the retargeted body).
+    """
+    data = mujoco.MjData(model)
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+    cam.distance, cam.azimuth, cam.elevation = distance, azimuth, elevation
+    start = np.asarray(qpos)[0, :3]
+    with mujoco.Renderer(model, height, width) as renderer:
+        for t, q in enumerate(np.asarray(qpos)):
+            data.qpos[:] = q
+            mujoco.mj_forward(model, data)
+            cam.lookat[:] = [q[0], q[1], 0.9] if follow else [start[0], start[1], 0.9]
+            renderer.update_scene(data, cam)
+            if spheres is not None:
+                add_spheres(renderer.scene, spheres[t], sphere_radius, sphere_rgba)
+            yield renderer.render().copy()
