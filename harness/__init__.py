@@ -5,4 +5,10 @@ procedural primitives), ``scene`` (markers, camera, occluders, observations), ``
 ``evaluation`` (scenarios, runner, metrics, reports).
 """
 
+import os
+
+# Offscreen rendering must pick its GL back-end before mujoco is first imported; EGL renders on the CPU
+# through Mesa when there is no GPU. A user's own setting wins.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
 __version__ = "0.1.0"

@@ -15,8 +15,6 @@ import numpy as np
 from harness.errors import HarnessError
 from harness.io import write_atomic
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 
 class VideoError(HarnessError):
     """A video that cannot be written."""
