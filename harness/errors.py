@@ -7,3 +7,7 @@ class HarnessError(Exception):
 
 class ModelError(HarnessError):
     """The body model file is missing, malformed, or not a humanoid56-like model."""
+
+
+class EngineError(HarnessError):
+    """Input the engine cannot use: malformed observations, a database of the wrong shape, bad settings."""

@@ -1,0 +1,182 @@
+"""The motion database: one left-to-right Gaussian HMM per motion primitive, learned in joint space.
+
+Each primitive ``c`` is an HMM with ``K`` states; state ``k`` emits the feature vector
+``f = [theta, theta_dot, v, omega]`` (see ``features``) from ``N(mean[c, k], diag(covar[c, k]))``.
+Transitions go from a state to itself or to the next one (left-to-right); cyclic primitives (walk, run, ...)
+may also go from the last state back to the first. Training is Baum-Welch (hmmlearn) from several
+demonstrations, initialised by cutting every demonstration into ``K`` equal time segments, which keeps the
+states ordered in time and makes EM deterministic.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+import numpy as np
+from hmmlearn.hmm import GaussianHMM
+
+from harness.engine.features import ANGLE_RATES, ANGLES, BASE_ANGULAR, BASE_LINEAR, N_FEATURES, motion_features
+from harness.errors import EngineError
+from harness.io import save_npz_atomic
+from harness.motion.motion import Motion
+
+DEFAULT_STATES = 20
+# Variance floor per feature group, as standard deviations: (2 deg)^2 for angles, (0.3 rad/s)^2 for their
+# rates, (0.05 m/s)^2 and (0.1 rad/s)^2 for the base. Below these the Gaussians claim a repeatability that
+# a human demonstrator does not have, and held-out demonstrations fall outside them.
+FLOOR_STD = ((ANGLES, np.deg2rad(2.0)), (ANGLE_RATES, 0.3), (BASE_LINEAR, 0.05), (BASE_ANGULAR, 0.1))
+_FORMAT = "harness-motion-database-1"
+
+
+def variance_floor() -> np.ndarray:
+    """``(106,)`` minimum variance per feature."""
+    floor = np.empty(N_FEATURES)
+    for sl, std in FLOOR_STD:
+        floor[sl] = std**2
+    return floor
+
+
+def left_to_right(n_states: int, mean_dwell: float, cyclic: bool) -> np.ndarray:
+    """``(K, K)`` transition matrix: stay with probability ``1 - 1/dwell``, else step to the next state."""
+    if n_states < 1:
+        raise EngineError(f"n_states must be >= 1, got {n_states}")
+    step = 1.0 / max(mean_dwell, 1.0)
+    a = np.eye(n_states) * (1.0 - step)
+    a[np.arange(n_states - 1), np.arange(1, n_states)] = step
+    if cyclic:
+        a[-1, 0] = step
+    else:
+        a[-1, -1] = 1.0
+    return a
+
+
+class MotionDatabase:
+    """One HMM per primitive over joint-space features.
+
+    Hyperparameters: ``n_states`` (K), ``cyclic`` (names of primitives whose last state wraps to the first),
+    ``n_iter`` (Baum-Welch iterations). Learned (after ``fit``): ``classes_`` (C,), ``means_`` (C, K, 106),
+    ``covars_`` (C, K, 106) diagonal variances, ``transmat_`` (C, K, K), ``startprob_`` (C, K), ``fps_``.
+    """
+
+    def __init__(self, n_states: int = DEFAULT_STATES, cyclic: Iterable[str] = (), n_iter: int = 15):
+        if n_states < 2:
+            raise EngineError(f"n_states must be >= 2, got {n_states}")
+        if n_iter < 0:
+            raise EngineError(f"n_iter must be >= 0, got {n_iter}")
+        self.n_states = int(n_states)
+        self.cyclic = tuple(cyclic)
+        self.n_iter = int(n_iter)
+
+    # --- learning -------------------------------------------------------------------------------
+
+    def fit(self, motions: Sequence[Motion]) -> "MotionDatabase":
+        """Learn one HMM per label found in ``motions`` (several demonstrations each, one fps)."""
+        if not motions:
+            raise EngineError("no training motions given")
+        fps = {m.fps for m in motions}
+        if len(fps) != 1:
+            raise EngineError(f"training motions must share one frame rate, got {sorted(fps)}")
+        classes = sorted({m.label for m in motions})
+        K = self.n_states
+        floor = variance_floor()
+        means = np.empty((len(classes), K, N_FEATURES))
+        covars = np.empty_like(means)
+        trans = np.empty((len(classes), K, K))
+        start = np.empty((len(classes), K))
+        for c, label in enumerate(classes):
+            feats = [motion_features(m) for m in motions if m.label == label]
+            short = [len(f) for f in feats if len(f) < K]
+            if short:
+                raise EngineError(f"class {label!r}: a demonstration of {short[0]} frames is shorter than "
+                                  f"the {K} states")
+            hmm = self._fit_one(feats, label in self.cyclic, floor)
+            means[c], trans[c], start[c] = hmm.means_, hmm.transmat_, hmm.startprob_
+            covars[c] = np.maximum(np.diagonal(hmm.covars_, axis1=1, axis2=2), floor)
+        self.classes_ = np.array(classes)
+        self.means_, self.covars_, self.transmat_, self.startprob_ = means, covars, trans, start
+        self.fps_ = float(fps.pop())
+        return self
+
+    def _fit_one(self, feats: list[np.ndarray], cyclic: bool, floor: np.ndarray) -> GaussianHMM:
+        K = self.n_states
+        segments = [np.minimum((np.arange(len(f)) * K) // len(f), K - 1) for f in feats]
+        x = np.concatenate(feats)
+        seg = np.concatenate(segments)
+        hmm = GaussianHMM(n_components=K, covariance_type="diag", n_iter=self.n_iter, init_params="",
+                          params="stmc", min_covar=1e-6, random_state=0, implementation="log")
+        hmm.startprob_ = np.eye(K)[0]
+        hmm.transmat_ = left_to_right(K, np.mean([len(f) for f in feats]) / K, cyclic)
+        hmm.means_ = np.stack([x[seg == k].mean(axis=0) for k in range(K)])
+        hmm.covars_ = np.stack([np.maximum(x[seg == k].var(axis=0), floor) for k in range(K)])
+        if self.n_iter:
+            hmm.fit(x, [len(f) for f in feats])
+        return hmm
+
+    # --- use ------------------------------------------------------------------------------------
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "means_"):
+            raise EngineError("the motion database is not trained: call fit() or MotionDatabase.load()")
+
+    @property
+    def n_classes(self) -> int:
+        self._check_fitted()
+        return len(self.classes_)
+
+    def log_emissions(self, features: np.ndarray) -> np.ndarray:
+        """Joint-space log densities ``(T, C, K)`` of features ``(T, 106)`` under every state."""
+        self._check_fitted()
+        f = np.asarray(features, dtype=float)
+        if f.ndim != 2 or f.shape[1] != N_FEATURES:
+            raise EngineError(f"features must be (T, {N_FEATURES}), got {f.shape}")
+        var = self.covars_[None]
+        d = f[:, None, None, :] - self.means_[None]
+        return -0.5 * (np.sum(d * d / var, axis=-1) + np.sum(np.log(2 * np.pi * var), axis=-1))
+
+    # --- files ----------------------------------------------------------------------------------
+
+    def save(self, path: str | Path) -> None:
+        self._check_fitted()
+        save_npz_atomic(path, {
+            "format": np.array(_FORMAT), "classes": self.classes_.astype(str), "means": self.means_,
+            "covars": self.covars_, "transmat": self.transmat_, "startprob": self.startprob_,
+            "fps": np.array(self.fps_), "cyclic": np.array(self.cyclic, dtype=str),
+            "n_iter": np.array(self.n_iter),
+        })
+
+    @classmethod
+    def load(cls, path: str | Path) -> "MotionDatabase":
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                if str(z["format"]) != _FORMAT:
+                    raise EngineError(f"{path}: not a motion database ({z['format']})")
+                db = cls(n_states=z["means"].shape[1], cyclic=[str(c) for c in z["cyclic"]],
+                         n_iter=int(z["n_iter"]))
+                db.classes_ = z["classes"].astype(str)
+                db.means_, db.covars_ = z["means"].astype(float), z["covars"].astype(float)
+                db.transmat_, db.startprob_ = z["transmat"].astype(float), z["startprob"].astype(float)
+                db.fps_ = float(z["fps"])
+        except FileNotFoundError:
+            raise EngineError(f"{path}: no such database file") from None
+        except (KeyError, ValueError, OSError) as exc:
+            raise EngineError(f"{path}: not a motion database ({exc})") from None
+        db.validate()
+        return db
+
+    def validate(self) -> "MotionDatabase":
+        """Check that the learned arrays agree in shape and are finite; raises EngineError naming the array."""
+        self._check_fitted()
+        C, K = len(self.classes_), self.means_.shape[1]
+        expect = {"means": (C, K, N_FEATURES), "covars": (C, K, N_FEATURES), "transmat": (C, K, K),
+                  "startprob": (C, K)}
+        for name, shape in expect.items():
+            a = getattr(self, name + "_")
+            if a.shape != shape:
+                raise EngineError(f"database {name} has shape {a.shape}, expected {shape} "
+                                  f"({C} classes, {K} states, {N_FEATURES} features)")
+            if not np.isfinite(a).all():
+                raise EngineError(f"database {name} has NaN or infinite values")
+        if np.any(self.covars_ <= 0):
+            raise EngineError("database covars must be positive")
+        return self

@@ -1,0 +1,26 @@
+"""The joint-space feature vector the motion database is learned over.
+
+``[theta (50), theta_dot (50), v (3), omega (3)]``: joint angles (rad), their rates (rad/s), and the base's
+linear (m/s) and angular (rad/s) velocity expressed in the base frame. Base-frame velocities make the features
+independent of where the demonstrator stands and which way it faces, which is what lets one database serve
+every viewpoint.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from harness.body.model import N_ANGLES
+from harness.motion.motion import Motion
+
+ANGLES = slice(0, N_ANGLES)
+ANGLE_RATES = slice(N_ANGLES, 2 * N_ANGLES)
+BASE_LINEAR = slice(2 * N_ANGLES, 2 * N_ANGLES + 3)
+BASE_ANGULAR = slice(2 * N_ANGLES + 3, 2 * N_ANGLES + 6)
+N_FEATURES = 2 * N_ANGLES + 6
+
+
+def motion_features(motion: Motion) -> np.ndarray:
+    """``(T, 106)`` features of a motion (velocities by finite differences, see ``Motion.velocities``)."""
+    vel = motion.velocities
+    return np.concatenate([motion.angles, vel.angles, vel.base_linear, vel.base_angular], axis=1)

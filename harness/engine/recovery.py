@@ -1,0 +1,72 @@
+"""Recovery: joint angles from the recognised primitive's state belief, refined to the observed 2D points.
+
+The prior is the belief-weighted mixture of the recognised HMM's states, moment-matched to one Gaussian
+``N(theta_0, diag(s^2))``; the base pose prior is the particle filter's estimate with the cloud's spread.
+Refinement is a few damped Gauss-Newton steps on
+
+    sum_p W_p |u_bar_p - pi(R x_p(theta) + t)|^2 + |(theta - theta_0)/s|^2 + pose prior terms
+
+where the soft assignment of flows to model points (the responsibilities, held fixed during the steps, as in
+EM) gives each model point the weight ``W_p = sum_m r_mp / sigma_p^2`` and the target ``u_bar_p``, the
+responsibility-weighted mean of the flows it explains. Aggregating per point makes a step cost one FK and
+Jacobian evaluation of the model points, whatever the number of flows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from harness import geometry
+from harness.body.kinematics import forward_points_and_jacobians
+from harness.body.model import BodyModel
+from harness.body.surface import SurfacePoints
+from harness.engine.transform import MIN_DEPTH, _skew
+from harness.pinhole import Intrinsics, project, projection_jacobian
+
+
+def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows: np.ndarray, resp: np.ndarray,
+                angles0: np.ndarray, angle_std: np.ndarray, position0: np.ndarray, rot0: np.ndarray,
+                position_std: np.ndarray, rotation_std: float, noise_px: float, spread: float,
+                iterations: int = 3, damping: float = 1e-3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Refine angles ``(50,)`` and the base pose (camera frame) to the observed flow positions.
+
+    ``resp`` ``(M, P)``: soft assignment of the ``M`` flows to the ``P`` model points. Returns
+    ``(angles, position (3,), rotation (3, 3))``; with no flows it returns the prior means.
+    """
+    angles = np.clip(np.asarray(angles0, dtype=float), body.lower, body.upper)
+    pos = np.asarray(position0, dtype=float).copy()
+    rot = np.asarray(rot0, dtype=float).copy()
+    flows = np.asarray(flows, dtype=float).reshape(-1, 4)
+    mass = resp.sum(axis=0)                                          # (P,)
+    used = mass > 1e-3
+    if len(flows) == 0 or not used.any() or iterations <= 0:
+        return angles, pos, rot
+    target = (resp[:, used].T @ flows[:, :2]) / mass[used, None]      # (P_used, 2)
+    sub = points.subset(np.flatnonzero(used))
+    prior_prec = np.concatenate([1.0 / np.asarray(angle_std) ** 2, 1.0 / np.asarray(position_std) ** 2,
+                                 np.full(3, 1.0 / rotation_std**2)])
+    qpos = np.zeros(57)
+    qpos[3] = 1.0
+    for _ in range(iterations):
+        qpos[7:] = angles
+        x, jac = forward_points_and_jacobians(body, qpos, sub.body, sub.local, frame="base")
+        X = x @ rot.T + pos
+        if np.any(X[:, 2] < MIN_DEPTH):
+            break
+        u = project(intr, X)
+        P = projection_jacobian(intr, X)                              # (Q, 2, 3)
+        sigma2 = noise_px**2 + (intr.fy * spread / X[:, 2]) ** 2
+        w = mass[used] / sigma2                                       # (Q,)
+        PR = P @ rot
+        G = np.concatenate([PR @ jac, P, -PR @ _skew(x)], axis=2)     # (Q, 2, 56)
+        A = np.einsum("q,qki,qkj->ij", w, G, G)
+        b = np.einsum("q,qki,qk->i", w, G, target - u)
+        offset = np.concatenate([angles - angles0, pos - position0, geometry.log(geometry.from_matrix(rot0.T @ rot))])
+        A[np.diag_indices_from(A)] += prior_prec
+        b -= prior_prec * offset
+        A[np.diag_indices_from(A)] *= 1.0 + damping
+        step = np.linalg.solve(A, b)
+        angles = np.clip(angles + step[:50], body.lower, body.upper)
+        pos = pos + step[50:53]
+        rot = rot @ geometry.to_matrix(geometry.exp(step[53:]))
+    return angles, pos, rot

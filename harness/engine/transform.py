@@ -1,0 +1,175 @@
+"""The database in the image: each HMM state's output distribution carried to model points, then to pixels.
+
+Body frame (once per database). For state ``(c, k)`` with angle mean/variance ``theta, S_theta``, rate
+mean/variance ``theta_dot, S_rate`` and base velocity ``v, S_v``, ``omega, S_omega`` (all base frame), a
+body-fixed model point ``p`` has, to first order about the means,
+
+    position  x = FK_p(theta),                         cov  J S_theta J^T + s_patch^2 I
+    velocity  xdot = J theta_dot + v + omega x x,       cov  H S_theta H^T + J S_rate J^T + S_v
+                                                             + [x]_x S_omega [x]_x^T
+
+with ``J = dFK_p/dtheta`` and ``H = d(xdot)/dtheta = Jdot + [omega]_x J``. ``Jdot`` (the derivative of the
+Jacobian along ``theta_dot``) equals ``d(J theta_dot)/dtheta`` because mixed second derivatives of the point
+position commute; it is taken by a central difference of ``J`` along ``theta_dot``. ``s_patch`` is the spread
+of the surface patch a model point stands for: the markers are not at the model points.
+
+Image (per pose hypothesis). With the base pose ``(R, t)`` in the camera frame: ``X = R x + t``,
+``Xdot = R xdot`` (minus the camera's own motion ``v_c + omega_c x X`` when it moves), and the pinhole
+Jacobian ``P = d(u, v)/dX`` maps both covariances: ``P R S R^T P^T``; ``udot = P Xdot``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from harness.body.kinematics import forward_points, forward_points_and_jacobians
+from harness.body.model import BodyModel
+from harness.body.surface import SurfacePoints, geom_area
+from harness.engine.database import MotionDatabase
+from harness.engine.features import ANGLE_RATES, ANGLES, BASE_ANGULAR, BASE_LINEAR
+from harness.pinhole import Intrinsics, projection_jacobian
+
+_JDOT_STEP = 1e-4          # radians moved along theta_dot for the central difference of J
+MIN_DEPTH = 0.05           # metres: points nearer the camera than this are treated as not visible
+
+
+@dataclass(frozen=True)
+class PointDistributions:
+    """Gaussian position and velocity of ``P`` model points in the base frame, for ``S`` states.
+
+    pos, vel: ``(S, P, 3)`` (m, m/s); pos_cov, vel_cov: ``(S, P, 3, 3)``; normal: ``(S, P, 3)`` unit
+    outward normals; base_linear, base_angular: ``(S, 3)`` the states' base velocity means (base frame).
+    """
+
+    pos: np.ndarray
+    pos_cov: np.ndarray
+    vel: np.ndarray
+    vel_cov: np.ndarray
+    normal: np.ndarray
+    base_linear: np.ndarray
+    base_angular: np.ndarray
+
+    def take(self, index) -> "PointDistributions":
+        return PointDistributions(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
+
+    def mixture(self, weights: np.ndarray) -> "PointDistributions":
+        """The moment-matched single Gaussian of the states' mixture with ``weights`` (S,): one 'state'."""
+        w = np.asarray(weights, dtype=float)
+        w = w / w.sum()
+        pos = np.einsum("s,spi->pi", w, self.pos)
+        vel = np.einsum("s,spi->pi", w, self.vel)
+        dp, dv = self.pos - pos, self.vel - vel
+        pos_cov = np.einsum("s,spij->pij", w, self.pos_cov) + np.einsum("s,spi,spj->pij", w, dp, dp)
+        vel_cov = np.einsum("s,spij->pij", w, self.vel_cov) + np.einsum("s,spi,spj->pij", w, dv, dv)
+        normal = np.einsum("s,spi->pi", w, self.normal)
+        normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
+        return PointDistributions(pos[None], pos_cov[None], vel[None], vel_cov[None], normal[None],
+                                  (w @ self.base_linear)[None], (w @ self.base_angular)[None])
+
+
+def patch_std(body: BodyModel, n_points: int) -> float:
+    """Per-axis spread (m) of a uniform disc of the area each of ``n_points`` model points stands for."""
+    m = body.model
+    area = sum(geom_area(int(m.geom_type[g]), m.geom_size[g]) for g in body.body_geoms)
+    radius = np.sqrt(area / (np.pi * max(n_points, 1)))
+    return float(radius / 2.0)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """``[v]_x`` for ``(..., 3)`` vectors: ``(..., 3, 3)``."""
+    z = np.zeros(v.shape[:-1])
+    x, y, w = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
+
+
+def state_point_distributions(body: BodyModel, angles: np.ndarray, angle_var: np.ndarray, rates: np.ndarray,
+                              rate_var: np.ndarray, base_linear: np.ndarray, base_linear_var: np.ndarray,
+                              base_angular: np.ndarray, base_angular_var: np.ndarray, points: SurfacePoints,
+                              spread: float = 0.0) -> PointDistributions:
+    """Carry ``S`` joint-space Gaussians (means and diagonal variances, ``(S, 50)`` / ``(S, 3)``) to the
+    ``P`` model points in the base frame (see the module docstring)."""
+    angles = np.atleast_2d(angles)
+    S = len(angles)
+    qpos = np.zeros((S, 57))
+    qpos[:, 3] = 1.0
+    qpos[:, 7:] = angles
+    pos, jac = forward_points_and_jacobians(body, qpos, points.body, points.local, frame="base")
+    rates = np.atleast_2d(rates)
+    step = _JDOT_STEP / np.maximum(np.abs(rates).max(axis=1, keepdims=True), 1e-12)
+    qpos_hi, qpos_lo = qpos.copy(), qpos.copy()
+    qpos_hi[:, 7:] += step * rates
+    qpos_lo[:, 7:] -= step * rates
+    jdot = (forward_points_and_jacobians(body, qpos_hi, points.body, points.local, frame="base")[1]
+            - forward_points_and_jacobians(body, qpos_lo, points.body, points.local, frame="base")[1]) / (2 * step[:, :, None, None])
+    tip = forward_points(body, qpos, points.body, points.local + points.normal, frame="base")
+    normal = tip - pos
+
+    w = np.atleast_2d(base_angular)
+    v = np.atleast_2d(base_linear)
+    skew_w = _skew(w)[:, None]                                   # (S, 1, 3, 3)
+    vel = np.einsum("spij,sj->spi", jac, rates) + v[:, None] + np.cross(w[:, None], pos)
+    h = jdot + skew_w @ jac                                      # (S, P, 3, 50)
+    theta_var = np.atleast_2d(angle_var)[:, None, None, :]
+    pos_cov = (jac * theta_var) @ np.swapaxes(jac, -1, -2) + spread**2 * np.eye(3)
+    skew_x = _skew(pos)
+    vel_cov = ((h * theta_var) @ np.swapaxes(h, -1, -2)
+               + (jac * np.atleast_2d(rate_var)[:, None, None, :]) @ np.swapaxes(jac, -1, -2)
+               + np.atleast_2d(base_linear_var)[:, None, None, :] * np.eye(3)
+               + (skew_x * np.atleast_2d(base_angular_var)[:, None, None, :]) @ np.swapaxes(skew_x, -1, -2))
+    return PointDistributions(pos, pos_cov, vel, vel_cov, normal, v, w)
+
+
+def database_point_distributions(db: MotionDatabase, body: BodyModel, points: SurfacePoints,
+                                 spread: float | None = None) -> PointDistributions:
+    """Every state of every primitive, flattened to ``S = C * K`` in (class, state) order."""
+    db.validate()
+    C, K, D = db.means_.shape
+    mean, var = db.means_.reshape(C * K, D), db.covars_.reshape(C * K, D)
+    if spread is None:
+        spread = patch_std(body, len(points.body))
+    return state_point_distributions(
+        body, mean[:, ANGLES], var[:, ANGLES], mean[:, ANGLE_RATES], var[:, ANGLE_RATES],
+        mean[:, BASE_LINEAR], var[:, BASE_LINEAR], mean[:, BASE_ANGULAR], var[:, BASE_ANGULAR], points, spread)
+
+
+@dataclass(frozen=True)
+class ImageDistributions:
+    """Per hypothesis ``H`` and model point ``P``: pixel mean ``(H, P, 2)`` and covariance ``(H, P, 2, 2)``,
+    image-velocity mean (px/s) and covariance, and whether the point faces the camera ``(H, P)``."""
+
+    pix: np.ndarray
+    pix_cov: np.ndarray
+    flow: np.ndarray
+    flow_cov: np.ndarray
+    facing: np.ndarray
+
+
+def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDistributions,
+             camera_motion: np.ndarray | None = None) -> ImageDistributions:
+    """Project body-frame point distributions for ``H`` base poses ``rot (H, 3, 3)``, ``trans (H, 3)``.
+
+    ``dist`` holds either one state (broadcast over the poses) or ``H`` states (one per pose).
+    ``camera_motion``: ``(6,)`` camera linear and angular velocity in its own frame, or None.
+    """
+    rot = np.asarray(rot, dtype=float).reshape(-1, 3, 3)
+    trans = np.asarray(trans, dtype=float).reshape(-1, 3)
+    R = rot[:, None]                                             # (H, 1, 3, 3), broadcast over points
+    X = (R @ dist.pos[..., None])[..., 0] + trans[:, None]
+    Xdot = (R @ dist.vel[..., None])[..., 0]
+    if camera_motion is not None:
+        vc, wc = camera_motion[:3], camera_motion[3:]
+        Xdot = Xdot - vc - np.cross(wc, X)
+    z = X[..., 2]
+    safe = np.where(z > MIN_DEPTH, z, 1.0)
+    Xs = np.concatenate([X[..., :2], safe[..., None]], axis=-1)
+    P = projection_jacobian(intr, Xs)                            # (H, P, 2, 3)
+    PR = P @ R                                                   # (H, P, 2, 3)
+    pix = np.stack([intr.fx * Xs[..., 0] / safe + intr.cx, intr.fy * Xs[..., 1] / safe + intr.cy], axis=-1)
+    pix_cov = PR @ dist.pos_cov @ np.swapaxes(PR, -1, -2)
+    flow = (P @ Xdot[..., None])[..., 0]
+    flow_cov = PR @ dist.vel_cov @ np.swapaxes(PR, -1, -2)
+    normal = (R @ dist.normal[..., None])[..., 0]
+    facing = (np.einsum("hpi,hpi->hp", normal, X) < 0) & (z > MIN_DEPTH)
+    return ImageDistributions(pix, pix_cov, flow, flow_cov, facing)

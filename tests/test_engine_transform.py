@@ -1,0 +1,116 @@
+"""The database transformation against Monte-Carlo sampling through exact FK, point velocities and projection."""
+
+import numpy as np
+import pytest
+
+from harness import geometry
+from harness.body import forward_points, point_jacobians, point_velocities, sample_surface
+from harness.engine.particle_filter import upright_orientations
+from harness.engine.transform import state_point_distributions, to_image
+from harness.pinhole import Intrinsics, project
+
+
+_RATE = np.random.default_rng(11).normal(0.0, 1.0, 50)
+
+
+def _rel_frobenius(a, b):
+    """Relative error per point; points on the root body have no angle-driven covariance (both ~0)."""
+    scale = np.linalg.norm(b, axis=(-2, -1))
+    err = np.linalg.norm(a - b, axis=(-2, -1))
+    return np.where(scale > 1e-12, err / np.maximum(scale, 1e-300), err)
+
+
+@pytest.fixture(scope="module")
+def monte_carlo(body):
+    rng = np.random.default_rng(3)
+    points = sample_surface(body, 12, rng)
+    theta = body.random_angles(rng, scale=0.3)
+    theta_std = np.full(50, np.deg2rad(3.0))
+    rate = _RATE
+    rate_std = np.full(50, 0.3)
+    v, v_std = np.array([1.0, 0.1, 0.0]), np.full(3, 0.1)
+    w, w_std = np.array([0.1, 0.0, 0.5]), np.full(3, 0.1)
+    dist = state_point_distributions(body, theta, theta_std**2, rate, rate_std**2, v, v_std**2, w, w_std**2,
+                                     points, spread=0.0)
+    n = 3000
+    thetas = theta + rng.normal(0.0, 1.0, (n, 50)) * theta_std
+    qpos = np.zeros((n, 57))
+    qpos[:, 3] = 1.0
+    qpos[:, 7:] = thetas
+    pos = forward_points(body, qpos, points.body, points.local, frame="base")
+    vel = point_velocities(body, qpos, rate + rng.normal(0.0, 1.0, (n, 50)) * rate_std,
+                           v + rng.normal(0.0, 1.0, (n, 3)) * v_std, w + rng.normal(0.0, 1.0, (n, 3)) * w_std,
+                           points.body, points.local)
+    return body, points, theta, dist, pos, vel
+
+
+def _cov(samples):
+    d = samples - samples.mean(axis=0)
+    return np.einsum("npi,npj->pij", d, d) / (len(samples) - 1)
+
+
+def test_body_frame_means_and_covariances_match_monte_carlo(monte_carlo):
+    body, points, theta, dist, pos, vel = monte_carlo
+    qpos = body.qpos(theta, base_pos=np.zeros(3), base_quat=np.array([1.0, 0, 0, 0]))
+    exact = forward_points(body, qpos, points.body, points.local, frame="base")
+    np.testing.assert_allclose(dist.pos[0], exact, atol=1e-12)
+    assert _rel_frobenius(dist.pos_cov[0], _cov(pos)).max() < 0.10
+    assert _rel_frobenius(dist.vel_cov[0], _cov(vel)).max() < 0.10
+    # The mean velocity is first order too: compare with the sample mean within its standard error.
+    se = np.sqrt(np.einsum("pii->pi", _cov(vel)) / len(vel))
+    assert np.all(np.abs(dist.vel[0] - vel.mean(axis=0)) < 5 * se + 0.02)
+
+
+def test_jdot_term_matters(monte_carlo):
+    """Dropping the d(J theta_dot)/d(theta) term makes the velocity covariance clearly wrong: the Monte-Carlo
+    comparison above is sensitive to it."""
+    body, points, theta, dist, pos, vel = monte_carlo
+    qpos = body.qpos(theta, base_pos=np.zeros(3), base_quat=np.array([1.0, 0, 0, 0]))
+    jac = point_jacobians(body, qpos, points.body, points.local, frame="base")
+    theta_var = np.deg2rad(3.0) ** 2
+    w = np.array([0.1, 0.0, 0.5])
+    skew = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    h_full = dist.vel_cov[0]
+    # Rebuild the covariance with H = [omega]_x J only (no Jdot): subtract the full H term, add the partial.
+    partial = skew @ jac
+    without = h_full + theta_var * (partial @ np.swapaxes(partial, -1, -2)) - _h_term(body, theta, points, dist)
+    with_term = _rel_frobenius(h_full, _cov(vel)).max()
+    assert _rel_frobenius(without, _cov(vel)).max() > 1.5 * with_term
+
+
+def _h_term(body, theta, points, dist):
+    """The full ``H S_theta H^T`` term, recovered as vel_cov minus the other (theta-independent) terms."""
+    no_theta = state_point_distributions(body, theta, np.zeros(50), _RATE, np.full(50, 0.09), np.array([1.0, 0.1, 0.0]),
+                                         np.full(3, 0.01), np.array([0.1, 0.0, 0.5]), np.full(3, 0.01), points)
+    return dist.vel_cov[0] - no_theta.vel_cov[0]
+
+
+def test_image_distributions_match_monte_carlo(monte_carlo):
+    body, points, theta, dist, pos, vel = monte_carlo
+    intr = Intrinsics.from_fov(45.0, 640, 480)
+    quat = upright_orientations(np.array([0.7]), np.array([0.2]))
+    rot = geometry.to_matrix(quat)
+    trans = np.array([[0.2, 0.1, 4.0]])
+    img = to_image(intr, rot, trans, dist)
+    X = pos @ rot[0].T + trans[0]
+    Xdot = vel @ rot[0].T
+    pix = project(intr, X)
+    # Image velocity of each sample: d/dt pi(X) = P(X) Xdot, exactly, per sample.
+    from harness.pinhole import projection_jacobian
+    flow = np.einsum("npij,npj->npi", projection_jacobian(intr, X), Xdot)
+    mean_pix = project(intr, dist.pos[0] @ rot[0].T + trans[0])
+    np.testing.assert_allclose(img.pix[0], mean_pix, atol=1e-6)
+    assert _rel_frobenius(img.pix_cov[0], _cov(pix)).max() < 0.10
+    assert _rel_frobenius(img.flow_cov[0], _cov(flow)).max() < 0.10
+
+
+def test_moving_camera_changes_flow_by_ego_motion(monte_carlo):
+    body, points, theta, dist, pos, vel = monte_carlo
+    intr = Intrinsics.from_fov(45.0, 640, 480)
+    rot = geometry.to_matrix(upright_orientations(np.array([0.0]), np.array([0.0])))
+    trans = np.array([[0.0, 0.0, 4.0]])
+    still = to_image(intr, rot, trans, dist)
+    # A camera translating along its own x axis at 1 m/s makes a point straight ahead drift by -fx/Z px/s.
+    moving = to_image(intr, rot, trans, dist, camera_motion=np.array([1.0, 0, 0, 0, 0, 0]))
+    X = dist.pos[0] @ rot[0].T + trans[0]
+    np.testing.assert_allclose(moving.flow[0, :, 0] - still.flow[0, :, 0], -intr.fx / X[:, 2], rtol=1e-9)
