@@ -10,6 +10,7 @@ states ordered in time and makes EM deterministic.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
@@ -110,7 +111,15 @@ class MotionDatabase:
         hmm.means_ = np.stack([x[seg == k].mean(axis=0) for k in range(K)])
         hmm.covars_ = np.stack([np.maximum(x[seg == k].var(axis=0), floor) for k in range(K)])
         if self.n_iter:
-            hmm.fit(x, [len(f) for f in feats])
+            # hmmlearn logs a warning when an EM step lowers the likelihood by rounding; the floor we apply
+            # afterwards matters more than the last digits of EM, so keep the log quiet.
+            logger = logging.getLogger("hmmlearn.base")
+            level = logger.level
+            logger.setLevel(logging.ERROR)
+            try:
+                hmm.fit(x, [len(f) for f in feats])
+            finally:
+                logger.setLevel(level)
         return hmm
 
     # --- use ------------------------------------------------------------------------------------

@@ -1,0 +1,200 @@
+"""Engine parts against independent computations: hmmlearn's forward algorithm, brute-force mixtures,
+resampling statistics, Gauss-Newton on a noiseless pose."""
+
+import ast
+import pathlib
+
+import numpy as np
+import pytest
+from hmmlearn.hmm import GaussianHMM
+
+from engine_fixtures import CLASSES, synthetic_demos
+from harness import geometry
+from harness.body import forward_points, sample_surface
+from harness.engine import MotionDatabase, Recognizer, motion_features, recognize_features
+from harness.engine.likelihood import flow_log_likelihoods, responsibilities, tempered
+from harness.engine.particle_filter import (ParticleFilter, effective_sample_size, systematic_resample,
+                                            upright_orientations)
+from harness.engine.recovery import refine_pose
+from harness.engine.transform import ImageDistributions, patch_std
+from harness.errors import EngineError
+from harness.pinhole import Intrinsics, project
+
+
+@pytest.fixture(scope="module")
+def database(body):
+    rng = np.random.default_rng(1)
+    train = [m for c in CLASSES for m in synthetic_demos(body, c, 4, rng)]
+    return MotionDatabase(n_states=8, cyclic=("march",), n_iter=5).fit(train)
+
+
+def test_database_is_left_to_right_and_round_trips(database, tmp_path):
+    db = database
+    assert list(db.classes_) == sorted(CLASSES)
+    upper = np.triu(np.ones((8, 8)), 0) - np.triu(np.ones((8, 8)), 2)   # self and next only
+    march = list(db.classes_).index("march")
+    for c in range(3):
+        allowed = upper.copy()
+        if c == march:
+            allowed[-1, 0] = 1
+        assert np.all(db.transmat_[c][allowed == 0] == 0)
+        np.testing.assert_allclose(db.transmat_[c].sum(axis=1), 1.0)
+    assert np.all(db.covars_ >= np.deg2rad(2.0) ** 2 * 0.999)
+    db.save(tmp_path / "db.npz")
+    back = MotionDatabase.load(tmp_path / "db.npz")
+    for name in ("means_", "covars_", "transmat_", "startprob_"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(db, name))
+    assert back.cyclic == db.cyclic and back.fps_ == db.fps_
+
+
+def test_forward_recursion_matches_hmmlearn(database, body):
+    """The class posterior after T frames equals normalised per-class likelihoods from hmmlearn's score."""
+    db = database
+    m = synthetic_demos(body, "squat", 1, np.random.default_rng(5))[0]
+    f = motion_features(m)
+    post = recognize_features(db, f, start_spread=0.0)
+    scores = []
+    for c in range(db.n_classes):
+        hmm = GaussianHMM(n_components=8, covariance_type="diag")
+        hmm.startprob_, hmm.transmat_ = db.startprob_[c], db.transmat_[c]
+        hmm.means_, hmm.covars_ = db.means_[c], db.covars_[c]
+        scores.append(hmm.score(f))
+    scores = np.array(scores)
+    expect = np.exp(scores - scores.max())
+    np.testing.assert_allclose(post[-1], expect / expect.sum(), atol=1e-9)
+    assert db.classes_[post[-1].argmax()] == "squat"
+
+
+def test_recognizer_pruning_and_empty_frames(database):
+    rec = Recognizer(database, start_spread=0.05, prune=0.01)
+    before = rec.posterior.copy()
+    rec.update(None)            # no evidence: the belief does not change
+    np.testing.assert_allclose(rec.posterior, before / before.sum())
+    assert rec.active().sum() == 3 and rec.active()[:, 0].all()   # only the start states are worth evaluating
+    with pytest.raises(EngineError, match="emissions must be"):
+        rec.update(np.zeros((2, 2)))
+
+
+def _random_image_distributions(rng, H, P):
+    pix = rng.uniform(0, 100, (H, P, 2))
+    flow = rng.normal(0, 30, (H, P, 2))
+    A = rng.normal(0, 2, (H, P, 2, 2))
+    B = rng.normal(0, 10, (H, P, 2, 2))
+    return ImageDistributions(pix, A @ np.swapaxes(A, -1, -2) + 4 * np.eye(2), flow,
+                              B @ np.swapaxes(B, -1, -2) + 25 * np.eye(2), rng.random((H, P)) < 0.7)
+
+
+def _gauss(x, mean, cov):
+    d = x - mean
+    return np.exp(-0.5 * d @ np.linalg.solve(cov, d)) / (2 * np.pi * np.sqrt(np.linalg.det(cov)))
+
+
+def test_flow_likelihood_matches_brute_force(rng):
+    H, P, M = 3, 7, 5
+    img = _random_image_distributions(rng, H, P)
+    flows = np.concatenate([rng.uniform(0, 100, (M, 2)), rng.normal(0, 30, (M, 2))], axis=1)
+    noise, fps, W, Hh, eps = 1.5, 30.0, 640, 480, 0.05
+    got = flow_log_likelihoods(flows, img, noise, fps, W, Hh, eps)
+    vmax = 0.25 * 640 * fps
+    for h in range(H):
+        facing = np.flatnonzero(img.facing[h])
+        for m in range(M):
+            s = sum(_gauss(flows[m, :2], img.pix[h, p], img.pix_cov[h, p] + noise**2 * np.eye(2))
+                    * _gauss(flows[m, 2:], img.flow[h, p], img.flow_cov[h, p] + 2 * (noise * fps) ** 2 * np.eye(2))
+                    for p in facing)
+            expect = np.log((1 - eps) * s / max(len(facing), 1) + eps / (W * Hh * np.pi * vmax**2))
+            assert got[h, m] == pytest.approx(expect, rel=1e-6)  # the gate drops terms below e^-30
+    r = responsibilities(flows, ImageDistributions(*(getattr(img, k)[:1] for k in ("pix", "pix_cov", "flow",
+                         "flow_cov", "facing"))), noise, fps, W, Hh, eps)
+    # Responsibilities plus the outlier share sum to one; and they follow the same terms.
+    out_share = eps / (W * Hh * np.pi * vmax**2) / np.exp(got[0])
+    np.testing.assert_allclose(r.sum(axis=1) + out_share, 1.0, atol=1e-9)
+    assert np.all(r[:, ~img.facing[0]] == 0)
+
+
+def test_tempering_counts_a_frame_as_at_most_n_eff_flows():
+    per_flow = np.array([[-1.0, -2.0, -3.0, -4.0]])
+    assert tempered(per_flow, 10.0)[0] == pytest.approx(-10.0)
+    assert tempered(per_flow, 2.0)[0] == pytest.approx(-10.0 * 2 / 4)
+    assert tempered(np.empty((3, 0)), 2.0).tolist() == [0.0, 0.0, 0.0]
+
+
+def test_systematic_resampling_is_unbiased_and_low_variance(rng):
+    w = rng.random(50) ** 3
+    w /= w.sum()
+    counts = np.zeros(50)
+    for _ in range(400):
+        idx = systematic_resample(w, rng)
+        c = np.bincount(idx, minlength=50)
+        # Systematic resampling keeps every count within one of its expectation.
+        assert np.all(np.abs(c - 50 * w) < 1.0 + 1e-9)
+        counts += c
+    np.testing.assert_allclose(counts / 400, 50 * w, atol=0.06)
+    assert effective_sample_size(np.ones(10)) == pytest.approx(10.0)
+    assert effective_sample_size(np.eye(10)[0] + 1e-300) == pytest.approx(1.0)
+
+
+def test_particle_filter_estimate_and_prediction(rng):
+    pf = ParticleFilter(500, rng, position_noise=0.0, rotation_noise=0.0)
+    q = upright_orientations(np.full(500, 0.3), np.full(500, 0.1))
+    pf.positions = np.tile([0.1, 0.2, 4.0], (500, 1)) + rng.normal(0, 0.01, (500, 3))
+    pf.quats = q
+    pos, quat = pf.estimate()
+    np.testing.assert_allclose(pos, [0.1, 0.2, 4.0], atol=0.003)
+    assert geometry.angle_between(quat, q[0]) < 1e-9
+    # One second of moving forward at 1 m/s in the base frame moves the cloud along the body's x axis.
+    pf.predict(np.array([1.0, 0, 0]), np.zeros(3), 1.0)
+    np.testing.assert_allclose(pf.estimate()[0] - pos, geometry.rotate(q[0], np.array([1.0, 0, 0])), atol=1e-9)
+    with pytest.raises(EngineError, match="at least one particle"):
+        ParticleFilter(0, rng)
+
+
+def test_refinement_recovers_a_perturbed_pose(body):
+    """Noiseless flows at known model points: Gauss-Newton from a perturbed start lands on the truth."""
+    rng = np.random.default_rng(4)
+    intr = Intrinsics.from_fov(45.0, 640, 480)
+    points = sample_surface(body, 150, rng)
+    theta = body.random_angles(rng, scale=0.3)
+    rot = geometry.to_matrix(upright_orientations(np.array([0.8]), np.array([0.15])))[0]
+    pos = np.array([0.1, 0.2, 4.0])
+    qpos = body.qpos(theta, base_pos=np.zeros(3), base_quat=np.array([1.0, 0, 0, 0]))
+    X = forward_points(body, qpos, points.body, points.local, frame="base") @ rot.T + pos
+    flows = np.concatenate([project(intr, X), np.zeros((150, 2))], axis=1)
+    resp = np.eye(150)
+    start = np.clip(theta + rng.normal(0, np.deg2rad(5), 50), body.lower, body.upper)
+    angles, pos_r, rot_r = refine_pose(body, points, intr, flows, resp, start, np.full(50, 1.0), pos + 0.05,
+                                       rot, np.full(3, 1.0), 1.0, 0.5, 0.0, iterations=8)
+    q = body.qpos(angles, base_pos=np.zeros(3), base_quat=np.array([1.0, 0, 0, 0]))
+    Xr = forward_points(body, q, points.body, points.local, frame="base") @ rot_r.T + pos_r
+    assert np.abs(project(intr, Xr) - flows[:, :2]).max() < 0.05
+    assert np.linalg.norm(pos_r - pos) < 0.01
+    assert patch_std(body, 150) == pytest.approx(patch_std(body, 600) * 2, rel=1e-12)
+
+
+def test_database_rejects_bad_input(database, body, tmp_path):
+    with pytest.raises(EngineError, match="no training motions"):
+        MotionDatabase().fit([])
+    with pytest.raises(EngineError, match="shorter than"):
+        MotionDatabase(n_states=200).fit(synthetic_demos(body, "wave", 2, np.random.default_rng(0)))
+    bad = MotionDatabase(n_states=8)
+    bad.classes_, bad.means_, bad.covars_ = database.classes_, database.means_[:, :, :50], database.covars_
+    bad.transmat_, bad.startprob_, bad.fps_ = database.transmat_, database.startprob_, 30.0
+    with pytest.raises(EngineError, match=r"database means has shape"):
+        bad.validate()
+    with pytest.raises(EngineError, match="not trained"):
+        MotionDatabase().log_emissions(np.zeros((3, 106)))
+    (tmp_path / "x.npz").write_bytes(b"nonsense")
+    with pytest.raises(EngineError, match="not a motion database"):
+        MotionDatabase.load(tmp_path / "x.npz")
+
+
+def test_engine_imports_nothing_from_the_simulator():
+    """The wall: the engine package reads observations, intrinsics, the body model and the database only."""
+    root = pathlib.Path(__file__).resolve().parents[1] / "harness" / "engine"
+    for path in root.glob("*.py"):
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else (
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            for name in names:
+                assert not name.startswith(("harness.scene", "harness.evaluation", "mujoco")), (path.name, name)
