@@ -15,7 +15,7 @@ from harness.body import BodyModel, SurfacePoints, sample_surface
 from harness.scene.spec import MarkerSpec
 
 DOT_GROUP = 5                       # site group of the rendered dots (enabled only when rendering dots)
-DOT_RADIUS = 0.016                  # m: about 2.3 px at 4 m with a 640x480, 45 degree camera
+DOT_RADIUS = 0.012                  # m: about 1.7 px at 4 m with a 640x480, 45 degree camera
 DOT_RGBA = (0.0, 1.0, 0.0, 1.0)     # pure green, emissive: stands out from grey floor and reddish skin
 BODY_RGBA = (0.30, 0.22, 0.20, 1.0)  # a darker skin for rendered scenes, so that the dots dominate
 
