@@ -1,0 +1,182 @@
+"""The ten procedural motion primitives of the performer, registered by name.
+
+A primitive is a function ``plan(take: Take) -> Plan``: from one take's timing, amplitude and random draws it
+writes the 50 hinge angles (degrees, in *anatomical* terms: see ``Take.lr``) and the base's orientation sway
+over time, and marks the frames in which the body is airborne. It does not place the base: the performer
+(``harness.motion.performer``) puts the feet on the floor and moves the base so that the supporting foot
+does not slide, which is what makes walking advance and squatting lower the pelvis.
+
+Conventions (``docs/humanoid56.md``): flexion of hip, shoulder and elbow is negative y; flexion of knee,
+ankle (plantar) and forward bending of spine and neck is positive y. ``Take.lr`` takes values for the left
+side and mirrors them to the right (x and z negated), so abduction and external rotation are positive for
+both sides as written here. The base's orientation sway is described in ``Plan``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from harness.errors import HarnessError
+
+N_ANGLES = 50
+JOINT_NAMES: tuple[str, ...] = (
+    "lowerback_y", "lowerback_x", "lowerback_z", "upperback_y", "upperback_x", "upperback_z",
+    "thorax_y", "thorax_x", "thorax_z", "lowerneck_y", "lowerneck_x", "lowerneck_z",
+    "upperneck_y", "upperneck_x", "upperneck_z", "head_y", "head_x", "head_z",
+    "lclavicle_z", "lclavicle_x", "lhumerus_y", "lhumerus_x", "lhumerus_z", "lradius_y", "lwrist_z",
+    "lhand_y", "lhand_x",
+    "rclavicle_z", "rclavicle_x", "rhumerus_y", "rhumerus_x", "rhumerus_z", "rradius_y", "rwrist_z",
+    "rhand_y", "rhand_x",
+    "lfemur_y", "lfemur_x", "lfemur_z", "ltibia_y", "lfoot_y", "lfoot_x", "ltoes_y",
+    "rfemur_y", "rfemur_x", "rfemur_z", "rtibia_y", "rfoot_y", "rfoot_x", "rtoes_y",
+)
+_INDEX = {name: i for i, name in enumerate(JOINT_NAMES)}
+
+
+class PerformerError(HarnessError):
+    """Bad input to the procedural performer (a parameter out of its domain)."""
+
+
+class UnknownPrimitiveError(PerformerError):
+    """A motion class that the performer does not know."""
+
+
+@dataclass
+class Plan:
+    """What a primitive produces for one take of ``T`` frames.
+
+    angles: ``(T, 50)`` degrees, model order (right side already mirrored).
+    yaw, pitch, roll: ``(T,)`` degrees, the base's orientation ``Rz(yaw) Ry(pitch) Rx(roll)``; pitch > 0
+    tips the pelvis forward, roll > 0 lowers its right side, yaw > 0 turns it to the left.
+    flight: ``(T,)`` bool, frames in which neither foot touches the floor (ballistic base height).
+    flight_speed: forward base speed (m/s, along the heading) added during flight, for jumps that travel.
+    """
+
+    angles: np.ndarray
+    yaw: np.ndarray
+    pitch: np.ndarray
+    roll: np.ndarray
+    flight: np.ndarray
+    flight_speed: float = 0.0
+
+
+class Take:
+    """One take's timing and draws, and the helpers primitives write joint trajectories with.
+
+    fps: frames per second. tempo: multiplies every duration (> 1 is slower). amp: multiplies movement
+    amplitudes. rng: this take's generator (durations, phases). A primitive first draws its timeline and
+    calls ``begin(duration)``, which sets ``t`` (``(T,)`` seconds) and zeroes the trajectories.
+    """
+
+    def __init__(self, fps: float, tempo: float, amp: float, rng: np.random.Generator):
+        self.fps, self.tempo, self.amp, self.rng = fps, tempo, amp, rng
+        self.t = np.zeros(0)
+
+    def begin(self, duration: float) -> np.ndarray:
+        """Allocate ``round(duration * fps) + 1`` frames; returns the times ``(T,)`` in seconds."""
+        n = int(round(duration * self.fps)) + 1
+        self.t = np.arange(n) / self.fps
+        self.angles = np.zeros((n, N_ANGLES))
+        self.yaw, self.pitch, self.roll = np.zeros(n), np.zeros(n), np.zeros(n)
+        self.flight = np.zeros(n, dtype=bool)
+        return self.t
+
+    def add(self, joint: str, deg) -> None:
+        """Add degrees to one joint (model sign convention)."""
+        self.angles[:, _INDEX[joint]] += deg
+
+    def lr(self, joint: str, left=0.0, right=0.0) -> None:
+        """Add anatomical degrees to a joint of both sides (``joint`` without the l/r prefix).
+
+        The right side mirrors the left: its x (ab/adduction) and z (twist) angles are negated, so the same
+        value means the same anatomical movement on both sides.
+        """
+        sign = -1.0 if joint.endswith(("_x", "_z")) else 1.0
+        self.angles[:, _INDEX["l" + joint]] += left
+        self.angles[:, _INDEX["r" + joint]] += sign * np.asarray(right)
+
+    def both(self, joint: str, deg) -> None:
+        self.lr(joint, deg, deg)
+
+    def spine(self, axis: str, deg) -> None:
+        """Spread a trunk angle over lower back, upper back and thorax (40/30/30 %)."""
+        for part, share in (("lowerback", 0.4), ("upperback", 0.3), ("thorax", 0.3)):
+            self.add(f"{part}_{axis}", share * np.asarray(deg))
+
+    def neck(self, axis: str, deg) -> None:
+        """Spread a neck angle over lower neck, upper neck and head (40/30/30 %)."""
+        for part, share in (("lowerneck", 0.4), ("upperneck", 0.3), ("head", 0.3)):
+            self.add(f"{part}_{axis}", share * np.asarray(deg))
+
+    def flat_feet(self, weight_left, weight_right=None) -> None:
+        """Set the ankles so that the soles stay parallel to the floor (sagittal plane), by ``weight``.
+
+        The sole's pitch is base pitch + hip + knee + ankle (all about parallel y axes), so the ankle that
+        keeps it flat is minus the sum of the others.
+        """
+        weight_right = weight_left if weight_right is None else weight_right
+        for side, w in (("l", weight_left), ("r", weight_right)):
+            chain = (self.pitch + self.angles[:, _INDEX[side + "femur_y"]]
+                     + self.angles[:, _INDEX[side + "tibia_y"]] + self.angles[:, _INDEX[side + "foot_y"]])
+            self.angles[:, _INDEX[side + "foot_y"]] -= np.asarray(w) * chain
+
+    def plan(self, flight_speed: float = 0.0) -> Plan:
+        return Plan(self.angles, self.yaw, self.pitch, self.roll, self.flight, flight_speed)
+
+    # --- time shapes ---------------------------------------------------------------------------
+
+    def span(self, lo: float, hi: float) -> float:
+        """A duration drawn uniformly from ``[lo, hi]`` seconds, times the tempo."""
+        return float(self.rng.uniform(lo, hi)) * self.tempo
+
+    def keys(self, *knots: tuple[float, float]) -> np.ndarray:
+        """A profile through ``(time s, value)`` knots, minimum-jerk between them, held outside."""
+        times = np.array([k[0] for k in knots])
+        values = np.array([k[1] for k in knots], dtype=float)
+        i = np.clip(np.searchsorted(times, self.t, side="right") - 1, 0, len(times) - 2)
+        dt = np.maximum(times[i + 1] - times[i], 1e-9)
+        s = np.clip((self.t - times[i]) / dt, 0.0, 1.0)
+        s = s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
+        return values[i] + (values[i + 1] - values[i]) * s
+
+
+def bump(phase: np.ndarray, centre: float, sharpness: float) -> np.ndarray:
+    """A smooth periodic bump in ``[0, 1]``, 1 at ``centre`` (radians), narrower for larger sharpness."""
+    return (0.5 * (1.0 + np.cos(phase - centre))) ** sharpness
+
+
+def window(t: np.ndarray, start: float, stop: float) -> np.ndarray:
+    return (t >= start) & (t < stop)
+
+
+# --- registry ------------------------------------------------------------------------------------
+
+PrimitiveFn = Callable[[Take], Plan]
+_REGISTRY: dict[str, PrimitiveFn] = {}
+
+
+def primitive(name: str):
+    """Register ``plan(take) -> Plan`` as the motion class ``name``."""
+    def register(fn: PrimitiveFn) -> PrimitiveFn:
+        if name in _REGISTRY:
+            raise ValueError(f"motion primitive {name!r} is registered twice")
+        _REGISTRY[name] = fn
+        return fn
+    return register
+
+
+def registered() -> tuple[str, ...]:
+    """Names of the registered primitives, in registration order."""
+    return tuple(_REGISTRY)
+
+
+def lookup(name: str) -> PrimitiveFn:
+    """The primitive registered as ``name``; an unknown name raises ``UnknownPrimitiveError``."""
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise UnknownPrimitiveError(
+            f"unknown motion class {name!r}; valid classes: {', '.join(_REGISTRY)}") from None
