@@ -20,7 +20,7 @@ class Recognizer:
 
     start_spread: probability mass of the start distribution spread uniformly over all states (so that a
     demonstration that starts mid-primitive can still be followed). prune: states whose posterior is below
-    ``prune`` times the largest are not evaluated (their emission is set to the worst evaluated one).
+    ``prune`` times the largest of their primitive are not evaluated (their emission is set to the worst evaluated one).
     """
 
     def __init__(self, db: MotionDatabase, start_spread: float = 0.05, prune: float = 1e-6):
@@ -49,8 +49,12 @@ class Recognizer:
         self.log_alpha = logsumexp(self.log_alpha[:, :, None] + self._log_trans, axis=1)
 
     def active(self) -> np.ndarray:
-        """``(C, K)`` bool: the states worth evaluating in the coming update."""
-        return self.log_alpha >= self.log_alpha.max() + self._log_prune
+        """``(C, K)`` bool: the states worth evaluating in the coming update.
+
+        Pruning is relative to the best state *of the same primitive*: a primitive that is unlikely now must
+        still follow its own states, or it could never come back when its distinctive phase (the flight of a
+        jump) arrives."""
+        return self.log_alpha >= self.log_alpha.max(axis=1, keepdims=True) + self._log_prune
 
     def update(self, log_b: np.ndarray) -> None:
         """Fold in one frame's emission log-likelihoods ``(C, K)``; entries of inactive states are ignored.

@@ -113,12 +113,17 @@ class Tracker:
 
     # --- one sequence ---------------------------------------------------------------------------
 
-    def run(self, obs: Observation, progress=None) -> Estimate:
+    def run(self, obs: Observation, progress=None, base_pose: tuple[np.ndarray, np.ndarray] | None = None
+            ) -> Estimate:
+        """Track a whole sequence. ``base_pose`` ``((T, 3), (T, 4))`` replaces the particle filter by a
+        given baselink pose in the camera frame (the ground-truth-pose baseline)."""
         obs.validate()
+        if base_pose is not None and (len(base_pose[0]) != len(obs) or len(base_pose[1]) != len(obs)):
+            raise EngineError(f"base_pose must have one pose per frame ({len(obs)})")
         self.reset(obs.intrinsics, obs.fps)
         for t, flows in enumerate(obs.flows):
             cam = None if obs.camera_motion is None else obs.camera_motion[t]
-            self.step(flows, cam)
+            self.step(flows, cam, None if base_pose is None else (base_pose[0][t], base_pose[1][t]))
             if progress is not None:
                 progress(t)
         return self.result()
@@ -135,7 +140,8 @@ class Tracker:
         self._pending = 0
         self._timing = {"filter": 0.0, "recognition": 0.0, "recovery": 0.0}
 
-    def step(self, flows: np.ndarray, camera_motion: np.ndarray | None = None) -> None:
+    def step(self, flows: np.ndarray, camera_motion: np.ndarray | None = None,
+             pose: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         cfg = self.config
         flows = np.asarray(flows, dtype=float).reshape(-1, 4)
         t0 = time.perf_counter()
@@ -158,13 +164,13 @@ class Tracker:
 
         # Weight the particles under the belief's mixture.
         t1 = time.perf_counter()
-        if len(flows):
+        if len(flows) and pose is None:
             mix = states.mixture(prior)
             img = to_image(self.intr, geometry.to_matrix(self.filter.quats), self.filter.positions, mix,
                            camera_motion)
             ll = flow_log_likelihoods(flows, img, cfg.noise_px, self.fps, W, H, cfg.outlier_prob)
             self.filter.update(tempered(ll, cfg.n_eff_filter))
-        pos, quat = self.filter.estimate()
+        pos, quat = self.filter.estimate() if pose is None else (np.asarray(pose[0]), np.asarray(pose[1]))
         rot = geometry.to_matrix(quat)
 
         # Recognise at the filter's estimate.
@@ -196,7 +202,10 @@ class Tracker:
             angles, pos_r, rot_r = refine_pose(self.body, self.points, self.intr, flows, resp, theta0,
                                                np.sqrt(var), pos, rot, spread, 0.3, cfg.noise_px, self.spread,
                                                cfg.refine_iterations)
-            self.filter.inject(pos_r, geometry.from_matrix(rot_r), cfg.inject_fraction, 0.5 * spread, 0.05)
+            if pose is None:
+                self.filter.inject(pos_r, geometry.from_matrix(rot_r), cfg.inject_fraction, 0.5 * spread, 0.05)
+            else:
+                pos_r, rot_r = pos, rot
         t4 = time.perf_counter()
         self._timing["filter"] += t2 - t1
         self._timing["recognition"] += t3 - t2
