@@ -35,6 +35,7 @@ def main() -> None:
     ap.add_argument("--amount", type=float, default=0.0)
     ap.add_argument("--particles", type=int, default=200)
     ap.add_argument("--gt-base", action="store_true", help="give the tracker the true base pose")
+    ap.add_argument("--set", nargs="*", default=[], help="engine settings key=value (TrackerConfig fields)")
     ap.add_argument("--classes", nargs="*", default=list(CLASSES))
     args = ap.parse_args()
 
@@ -45,7 +46,7 @@ def main() -> None:
              (demonstrations(c, 1, train_rng, subject=int(s))[0] for s in range(args.train))]
     db = MotionDatabase(n_states=args.states, cyclic=CYCLIC).fit(train)
     print(f"database: {len(train)} demos, {time.perf_counter() - t0:.1f} s")
-    tracker = Tracker(db, body, TrackerConfig(particles=args.particles), rng=np.random.default_rng(args.eval_seed))
+    tracker = Tracker(db, body, TrackerConfig(particles=args.particles, **{k: float(v) for k, v in (a.split('=') for a in args.set)}), rng=np.random.default_rng(args.eval_seed))
 
     rng = np.random.default_rng(args.eval_seed)
     rows = []
