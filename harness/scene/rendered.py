@@ -149,7 +149,7 @@ def rendered_flows(setup: "SceneSetup", qpos: np.ndarray, fps: float) -> list[tu
     return out
 
 
-def depth_visible(setup: "SceneSetup", qpos: np.ndarray, tolerance: float = 0.02) -> np.ndarray:
+def depth_visible(setup: "SceneSetup", qpos: np.ndarray, tolerance: float = 0.02, scale: int = 1) -> np.ndarray:
     """Visibility from the renderer's depth buffer, ``(T, N)`` bool (an independent check of ray casting).
 
     A marker in the image is visible when the rendered depth at its pixel is not smaller than its own
@@ -158,10 +158,10 @@ def depth_visible(setup: "SceneSetup", qpos: np.ndarray, tolerance: float = 0.02
     intr = setup.camera.intrinsics
     out = np.zeros(setup.visibility.shape, dtype=bool)
     z = setup.marker_cam[..., 2]
-    for t, depth in enumerate(render_frames(setup, qpos, depth=True, dots=False)):
+    for t, depth in enumerate(render_frames(setup, qpos, depth=True, dots=False, scale=scale)):
         inside = setup.visibility[t] != 1
         idx = np.flatnonzero(inside)
-        col = np.clip(np.floor(setup.pixels[t, idx, 0]).astype(int), 0, intr.width - 1)
-        row = np.clip(np.floor(setup.pixels[t, idx, 1]).astype(int), 0, intr.height - 1)
+        col = np.clip(np.floor(scale * setup.pixels[t, idx, 0]).astype(int), 0, scale * intr.width - 1)
+        row = np.clip(np.floor(scale * setup.pixels[t, idx, 1]).astype(int), 0, scale * intr.height - 1)
         out[t, idx] = depth[row, col] >= z[t, idx] - tolerance
     return out
