@@ -33,7 +33,7 @@ DOT_THRESHOLD = 60          # greenness (0..255) above which a pixel belongs to 
 FB_MAX_PX = 0.5             # forward-backward Lucas-Kanade consistency, pixels
 SNAP_PX = 2.0               # a tracked point must end this close to a detected dot, pixels
 MATCH_PX = 3.0              # ground truth: a dot is marker i if it lies this close to its projection
-MERGED_AREA = 1.8         # blob area, relative to the median, above which a blob is several dots
+MERGED_AREA = 3.0         # blob area, relative to the median, above which a blob is several dots
 LK_WINDOW = (15, 15)
 LK_LEVELS = 3
 
