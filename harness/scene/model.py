@@ -13,6 +13,7 @@ from harness.scene.markers import BODY_RGBA, add_marker_sites
 from harness.scene.occluders import Box, add_occluder_geoms
 
 CAMERA_NAME = "scene"
+MAX_RENDER_SCALE = 4
 
 
 class SceneModel:
@@ -31,8 +32,9 @@ class SceneModel:
         add_marker_sites(spec, body, markers)
         add_occluder_geoms(spec, boxes)
         spec.worldbody.add_camera(name=CAMERA_NAME, fovy=float(fovy), pos=[0.0, 0.0, 0.0])
-        spec.visual.global_.offwidth = max(int(width), spec.visual.global_.offwidth)
-        spec.visual.global_.offheight = max(int(height), spec.visual.global_.offheight)
+        # Room for supersampled renders (the depth-buffer check renders at up to MAX_RENDER_SCALE x).
+        spec.visual.global_.offwidth = max(MAX_RENDER_SCALE * int(width), spec.visual.global_.offwidth)
+        spec.visual.global_.offheight = max(MAX_RENDER_SCALE * int(height), spec.visual.global_.offheight)
         self.model = spec.compile()
         self.data = mujoco.MjData(self.model)
         m = self.model

@@ -33,7 +33,7 @@ DOT_THRESHOLD = 60          # greenness (0..255) above which a pixel belongs to 
 FB_MAX_PX = 0.5             # forward-backward Lucas-Kanade consistency, pixels
 SNAP_PX = 2.0               # a tracked point must end this close to a detected dot, pixels
 MATCH_PX = 3.0              # ground truth: a dot is marker i if it lies this close to its projection
-MERGED_AREA = 1.8         # blob area, relative to the median, above which a blob is several dots
+MERGED_AREA = 3.0         # blob area, relative to the median, above which a blob is several dots
 LK_WINDOW = (15, 15)
 LK_LEVELS = 3
 
@@ -149,7 +149,7 @@ def rendered_flows(setup: "SceneSetup", qpos: np.ndarray, fps: float) -> list[tu
     return out
 
 
-def depth_visible(setup: "SceneSetup", qpos: np.ndarray, tolerance: float = 0.02) -> np.ndarray:
+def depth_visible(setup: "SceneSetup", qpos: np.ndarray, tolerance: float = 0.02, scale: int = 1) -> np.ndarray:
     """Visibility from the renderer's depth buffer, ``(T, N)`` bool (an independent check of ray casting).
 
     A marker in the image is visible when the rendered depth at its pixel is not smaller than its own
@@ -158,10 +158,10 @@ def depth_visible(setup: "SceneSetup", qpos: np.ndarray, tolerance: float = 0.02
     intr = setup.camera.intrinsics
     out = np.zeros(setup.visibility.shape, dtype=bool)
     z = setup.marker_cam[..., 2]
-    for t, depth in enumerate(render_frames(setup, qpos, depth=True, dots=False)):
+    for t, depth in enumerate(render_frames(setup, qpos, depth=True, dots=False, scale=scale)):
         inside = setup.visibility[t] != 1
         idx = np.flatnonzero(inside)
-        col = np.clip(np.floor(setup.pixels[t, idx, 0]).astype(int), 0, intr.width - 1)
-        row = np.clip(np.floor(setup.pixels[t, idx, 1]).astype(int), 0, intr.height - 1)
+        col = np.clip(np.floor(scale * setup.pixels[t, idx, 0]).astype(int), 0, scale * intr.width - 1)
+        row = np.clip(np.floor(scale * setup.pixels[t, idx, 1]).astype(int), 0, scale * intr.height - 1)
         out[t, idx] = depth[row, col] >= z[t, idx] - tolerance
     return out
