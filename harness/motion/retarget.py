@@ -253,3 +253,25 @@ def retarget(positions: np.ndarray, joint_names: tuple[str, ...] | list[str], fp
     return RetargetResult(qpos=qpos, fps=fps_final, targets=targets,
                           target_bodies=tuple(body.body_names[b] for b in bodies), residual=residual,
                           scale=scale, source_positions=shown)
+
+
+#: A foot whose origin moves slower than this (m/s, horizontally) is taken to be in stance.
+STANCE_SPEED = 0.25
+
+
+def stance_foot_heights(body: BodyModel, qpos: np.ndarray, fps: float, speed: float = STANCE_SPEED) -> np.ndarray:
+    """Lowest point (m, world z) of each foot (foot and toes geoms) on the frames where that foot's ankle
+    moves horizontally slower than ``speed`` m/s: a 1-D array over (frame, foot) pairs in stance."""
+    from harness.body import body_origins
+
+    qpos = np.asarray(qpos, dtype=float)
+    origins = body_origins(body, qpos)
+    heights = []
+    for side in ("l", "r"):
+        ankle = origins[:, body.body_id(f"{side}foot") - 1, :2]
+        v = np.linalg.norm(np.gradient(ankle, 1.0 / fps, axis=0), axis=1)
+        geoms = np.flatnonzero(np.isin(body.model.geom_bodyid, [body.body_id(f"{side}foot"),
+                                                                 body.body_id(f"{side}toes")]))
+        low = geom_z_range(body, qpos, geoms)[:, :, 0].min(axis=1)
+        heights.append(low[v < speed])
+    return np.concatenate(heights)
