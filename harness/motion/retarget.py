@@ -20,8 +20,11 @@ Steps (``retarget``):
 5. **Damped least squares IK** per frame over the base pose (6) and the 50 angles, with MuJoCo
    Jacobians (``forward_points_and_jacobians``): ``(J^T J + lambda^2 I) dq = J^T r``; angles are clipped to
    their ranges after every step (projected steps); each frame starts from the previous solution.
-6. **Grounding**: the clip is shifted vertically so that the lowest point of the feet over the clip is
-   at z = 0.
+6. **Levelling and grounding**: captured floors are not always level (CMU's walks climb a few
+   centimetres over three metres); with ``level_floor`` the plane through the stance feet
+   (``z = a x + b y + c``, fitted when the stance points span at least ``LEVEL_MIN_SPAN`` m) is removed
+   by moving the base down by ``a x + b y`` at its position. Then the clip is shifted vertically so
+   that the lowest point of the feet over the clip is at z = 0.
 
 The residual reported is the distance between each target and the body origin that follows it, metres,
 in humanoid scale (the "scale-normalised" residual).
@@ -213,7 +216,7 @@ def retarget(positions: np.ndarray, joint_names: tuple[str, ...] | list[str], fp
              unit_m: float = 1.0, up: str = "y", fps_out: float | None = 30.0,
              mapping: dict[str, str | None] | None = None, body: BodyModel | None = None,
              damping: float = DEFAULT_DAMPING, iterations: int = DEFAULT_ITERATIONS,
-             posture: float = DEFAULT_POSTURE, where: str = "source skeleton") -> RetargetResult:
+             posture: float = DEFAULT_POSTURE, level_floor: bool = True, where: str = "source skeleton") -> RetargetResult:
     """Source joint positions ``(T, J, 3)`` (source units, ``up`` axis ``"y"`` or ``"z"``) at ``fps`` ->
     humanoid56 configurations at ``fps_out`` (None: keep ``fps``). See the module docstring for the steps."""
     body = body or BodyModel.load()
@@ -245,11 +248,15 @@ def retarget(positions: np.ndarray, joint_names: tuple[str, ...] | list[str], fp
     init[3:7] = base_frames(*(src[0, bodies.index(body.body_id(n))] for n in ("pelvis", "lfemur", "rfemur", spine)))
     qpos, residual = solve_ik(body, targets, np.array(bodies), init, damping=damping, iterations=iterations,
                                  posture=posture)
+    tilt = floor_tilt(body, qpos, fps_final) if level_floor else np.zeros(len(qpos))
+    qpos[:, 2] -= tilt
+    targets[:, :, 2] -= tilt[:, None]
     dz = ground_offset(body, qpos)
     qpos[:, 2] -= dz
     targets[:, :, 2] -= dz
     # The raw source skeleton at humanoid scale, moved with the targets (its root on the pelvis target).
-    shown = positions * scale + (targets[:, k_pelvis] - scale * src[:, k_pelvis])[:, None]
+    shown = positions * scale
+    shown += (targets[:, k_pelvis] - scale * src[:, k_pelvis])[:, None]
     return RetargetResult(qpos=qpos, fps=fps_final, targets=targets,
                           target_bodies=tuple(body.body_names[b] for b in bodies), residual=residual,
                           scale=scale, source_positions=shown)
@@ -275,3 +282,32 @@ def stance_foot_heights(body: BodyModel, qpos: np.ndarray, fps: float, speed: fl
         low = geom_z_range(body, qpos, geoms)[:, :, 0].min(axis=1)
         heights.append(low[v < speed])
     return np.concatenate(heights)
+
+
+#: Least horizontal extent (m) of the stance points before a floor slope is fitted: in-place motions
+#: (punches, jumps on the spot) leave the slope undetermined, and their floor is left as captured.
+LEVEL_MIN_SPAN = 1.0
+
+
+def floor_tilt(body: BodyModel, qpos: np.ndarray, fps: float, speed: float = STANCE_SPEED) -> np.ndarray:
+    """Height (m) of the captured floor's slope under the base, ``(T,)``: ``a x_t + b y_t`` with ``a, b`` the
+    least-squares plane through the lowest points of the feet in stance (zeros if the stance points span
+    less than ``LEVEL_MIN_SPAN`` m)."""
+    from harness.body import body_origins
+
+    qpos = np.asarray(qpos, dtype=float)
+    origins = body_origins(body, qpos)
+    points = []
+    for side in ("l", "r"):
+        ankle = origins[:, body.body_id(f"{side}foot") - 1]
+        v = np.linalg.norm(np.gradient(ankle[:, :2], 1.0 / fps, axis=0), axis=1)
+        geoms = np.flatnonzero(np.isin(body.model.geom_bodyid, [body.body_id(f"{side}foot"),
+                                                                 body.body_id(f"{side}toes")]))
+        low = geom_z_range(body, qpos, geoms)[:, :, 0].min(axis=1)
+        stance = v < speed
+        points.append(np.column_stack([ankle[stance, :2], low[stance]]))
+    pts = np.concatenate(points)
+    if len(pts) < 3 or np.ptp(pts[:, :2], axis=0).max() < LEVEL_MIN_SPAN:
+        return np.zeros(len(qpos))
+    coef = np.linalg.lstsq(np.column_stack([pts[:, :2], np.ones(len(pts))]), pts[:, 2], rcond=None)[0]
+    return qpos[:, :2] @ coef[:2]
