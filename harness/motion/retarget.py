@@ -53,7 +53,7 @@ FIRST_FRAME_ITERATIONS = 150
 STEP_TOLERANCE = 1e-6
 FOOT_BODIES = ("lfoot", "ltoes", "rfoot", "rtoes")
 REQUIRED_BODIES = ("pelvis", "lfemur", "rfemur")
-HEIGHT_CHAIN = ("lfoot", "ltibia", "lfemur", "pelvis", "upperback", "thorax", "lowerneck", "upperneck", "head")
+HEIGHT_CHAIN = ("lfoot", "ltibia", "lfemur", "pelvis", "lowerback", "upperback", "thorax", "lowerneck", "upperneck", "head")
 
 
 class RetargetError(HarnessError):
