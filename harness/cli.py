@@ -57,6 +57,7 @@ def _load_command_modules() -> None:
     """Modules that register commands; imported here so that ``--help`` lists them all."""
     import harness.motion.render_cli  # noqa: F401
     import harness.scene.scene_cli  # noqa: F401
+    import harness.motion.capture_cli  # noqa: F401
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,313 @@
+"""Retargeting: source joint positions over time -> humanoid56 configurations, one path for every format.
+
+Steps (``retarget``):
+
+1. **Units and up axis.** Source positions ``(T, J, 3)`` are multiplied by ``unit_m`` (metres per source
+   unit) and turned z-up. CMU skeletons are y-up with x to the subject's left and z forward, so the proper
+   rotation ``(x, y, z) -> (z, x, y)`` makes them x forward, y left, z up like humanoid56 (no mirroring).
+2. **Resampling** to the output frame rate (linear in time), so that only the output frames are solved.
+3. **Targets with humanoid proportions.** Each mapped humanoid body ``b`` follows its source joint
+   through the direction from its nearest mapped ancestor ``a``:
+   ``target_b = target_a + L_ab * unit(src_b - src_a)`` with ``L_ab`` the humanoid's own distance between
+   the two joint centres. Source and humanoid proportions differ (CMU's spine and neck split the trunk
+   differently from humanoid56), so matching raw positions would leave centimetres of error that no pose
+   can remove; matching directions keeps the pose and lets the humanoid's bone lengths stand. The hips
+   are placed rigidly on the pelvis (``target_pelvis + R_base offset``), because the source's hip-joint
+   bones do not match the humanoid's pelvis shape. The pelvis target is the source root times the
+   **height scale** ``s`` (humanoid ankle-to-head chain length over the source's), so that strides and
+   jump heights scale with the body.
+4. **Base** position from the pelvis target, orientation from the hips line (y) and the spine (z).
+5. **Damped least squares IK** per frame over the base pose (6) and the 50 angles, with MuJoCo
+   Jacobians (``forward_points_and_jacobians``): ``(J^T J + lambda^2 I) dq = J^T r``; angles are clipped to
+   their ranges after every step (projected steps); each frame starts from the previous solution.
+6. **Levelling and grounding**: captured floors are not always level (CMU's walks climb a few
+   centimetres over three metres); with ``level_floor`` the plane through the stance feet
+   (``z = a x + b y + c``, fitted when the stance points span at least ``LEVEL_MIN_SPAN`` m) is removed
+   by moving the base down by ``a x + b y`` at its position. Then the clip is shifted vertically so
+   that the lowest point of the feet over the clip is at z = 0.
+
+The residual reported is the distance between each target and the body origin that follows it, metres,
+in humanoid scale (the "scale-normalised" residual).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from harness import geometry
+from harness.body import BodyModel, forward_points_and_jacobians, geom_z_range
+from harness.errors import HarnessError
+from harness.motion.skeletons import resolve_correspondence
+
+#: Damping of the least-squares steps (metres): small enough to converge to sub-millimetre residuals,
+#: large enough to keep unobservable DOFs (wrist twist, toes) at their warm start.
+DEFAULT_DAMPING = 0.01
+#: Pull of every angle towards zero (the upright reference pose), metres per radian. Joint positions leave
+#: some combinations unobservable (a spine twist undone by the clavicles, a humerus twist with a straight
+#: elbow); without this pull such combinations drift into their limits.
+DEFAULT_POSTURE = 0.02
+DEFAULT_ITERATIONS = 12
+FIRST_FRAME_ITERATIONS = 150
+STEP_TOLERANCE = 1e-6
+FOOT_BODIES = ("lfoot", "ltoes", "rfoot", "rtoes")
+REQUIRED_BODIES = ("pelvis", "lfemur", "rfemur")
+HEIGHT_CHAIN = ("lfoot", "ltibia", "lfemur", "pelvis", "lowerback", "upperback", "thorax", "lowerneck", "upperneck", "head")
+
+
+class RetargetError(HarnessError):
+    """A source skeleton that cannot be retargeted (for example, without hips or spine)."""
+
+
+@dataclass(frozen=True)
+class RetargetResult:
+    """qpos ``(T, 57)`` at ``fps``; targets ``(T, K, 3)`` metres (world, grounded like qpos) for
+    ``target_bodies`` ``(K,)`` humanoid body names; residual ``(T, K)`` metres; scale: the height scale ``s``
+    (humanoid per source metre); source_positions ``(T, J, 3)``: the source joints in metres, z-up,
+    resampled, scaled by ``s`` and shifted like the targets (for drawing)."""
+
+    qpos: np.ndarray
+    fps: float
+    targets: np.ndarray
+    target_bodies: tuple[str, ...]
+    residual: np.ndarray
+    scale: float
+    source_positions: np.ndarray
+
+
+def y_up_to_z_up(positions: np.ndarray) -> np.ndarray:
+    """``(..., 3)`` from y-up (x left, z forward: CMU) to z-up (x forward, y left): ``(x, y, z) -> (z, x, y)``."""
+    p = np.asarray(positions, dtype=float)
+    return np.stack([p[..., 2], p[..., 0], p[..., 1]], axis=-1)
+
+
+def resample_positions(positions: np.ndarray, fps: float, fps_out: float) -> np.ndarray:
+    """Linear resampling ``(T, J, 3)`` at ``fps`` to ``fps_out`` over the same time span."""
+    n_in = len(positions)
+    n_out = int(np.floor((n_in - 1) / fps * fps_out + 1e-9)) + 1
+    t = np.arange(n_out) * (fps / fps_out)
+    i0 = np.minimum(np.floor(t).astype(int), max(n_in - 2, 0))
+    a = (t - i0)[:, None, None]
+    i1 = np.minimum(i0 + 1, n_in - 1)
+    return (1.0 - a) * positions[i0] + a * positions[i1]
+
+
+def _mapped_ancestor(body: BodyModel, bid: int, mapped: set[int]) -> int:
+    p = int(body.model.body_parentid[bid])
+    while p not in mapped:
+        if p == 0:
+            raise RetargetError(f"body {body.body_names[bid]!r} has no mapped ancestor (is the pelvis mapped?)")
+        p = int(body.model.body_parentid[p])
+    return p
+
+
+def _zero_origins(body: BodyModel) -> np.ndarray:
+    from harness.body import body_origins
+
+    return np.vstack([np.zeros((1, 3)), body_origins(body, body.zero_qpos(), frame="base")])
+
+
+def height_scale(body: BodyModel, src: np.ndarray, bodies: list[int]) -> float:
+    """Humanoid over source length of the ankle-to-head chain through the mapped bodies (mean over frames).
+
+    ``src`` ``(T, K, 3)`` source positions of ``bodies`` ``(K,)`` body ids, metres."""
+    origins = _zero_origins(body)
+    chain = [body.body_id(n) for n in HEIGHT_CHAIN if body.body_id(n) in bodies]
+    if len(chain) < 3:
+        raise RetargetError("the source maps too few of the ankle-to-head bodies to measure its height")
+    idx = [bodies.index(b) for b in chain]
+    src_len = np.linalg.norm(np.diff(src[:, idx], axis=1), axis=2).sum(axis=1).mean()
+    hum_len = np.linalg.norm(np.diff(origins[chain], axis=0), axis=1).sum()
+    return float(hum_len / src_len)
+
+
+def base_frames(pelvis: np.ndarray, left_hip: np.ndarray, right_hip: np.ndarray, spine: np.ndarray) -> np.ndarray:
+    """Base orientations ``(T, 4)`` from the hips line (y, to the left) and the pelvis-to-spine direction (z)."""
+    z = spine - pelvis
+    z /= np.linalg.norm(z, axis=-1, keepdims=True)
+    y = left_hip - right_hip
+    y -= np.sum(y * z, axis=-1, keepdims=True) * z
+    y /= np.linalg.norm(y, axis=-1, keepdims=True)
+    x = np.cross(y, z)
+    return geometry.from_matrix(np.stack([x, y, z], axis=-1))
+
+
+def proportional_targets(body: BodyModel, src: np.ndarray, bodies: list[int], scale: float) -> np.ndarray:
+    """Targets ``(T, K, 3)`` with humanoid bone lengths and the source's directions (module docstring, step 3).
+
+    ``src`` ``(T, K, 3)`` metres z-up for body ids ``bodies`` (must include pelvis, lfemur, rfemur)."""
+    origins = _zero_origins(body)
+    mapped = set(bodies)
+    k_of = {b: k for k, b in enumerate(bodies)}
+    pelvis, lhip, rhip = (body.body_id(n) for n in REQUIRED_BODIES)
+    spine = next((body.body_id(n) for n in ("thorax", "upperback", "lowerneck") if body.body_id(n) in mapped), None)
+    if spine is None:
+        raise RetargetError("the source maps no spine joint (thorax, upperback or lowerneck)")
+    out = np.empty_like(src)
+    out[:, k_of[pelvis]] = scale * src[:, k_of[pelvis]]
+    quat = base_frames(src[:, k_of[pelvis]], src[:, k_of[lhip]], src[:, k_of[rhip]], src[:, k_of[spine]])
+    # Parents before children: body ids in MuJoCo are in tree order.
+    for b in sorted(mapped - {pelvis}):
+        a = _mapped_ancestor(body, b, mapped)
+        if a == pelvis and int(body.model.body_parentid[b]) == pelvis:
+            out[:, k_of[b]] = out[:, k_of[a]] + geometry.rotate(quat, origins[b] - origins[pelvis])
+            continue
+        d = src[:, k_of[b]] - src[:, k_of[a]]
+        d /= np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-9)
+        out[:, k_of[b]] = out[:, k_of[a]] + np.linalg.norm(origins[b] - origins[a]) * d
+    return out
+
+
+def _skew_columns(r: np.ndarray) -> np.ndarray:
+    """``(K, 3, 3)``: column k is ``e_k x r``, the point velocity for a unit world rotation rate about axis k."""
+    return -np.cross(r[:, :, None], np.eye(3)[None, :, :], axisa=1, axisb=1, axisc=1)
+
+
+def solve_ik(body: BodyModel, targets: np.ndarray, target_bodies: np.ndarray, init: np.ndarray,
+             damping: float = DEFAULT_DAMPING, iterations: int = DEFAULT_ITERATIONS,
+             first_iterations: int = FIRST_FRAME_ITERATIONS, weights: np.ndarray | None = None,
+             posture: float = DEFAULT_POSTURE) -> tuple[np.ndarray, np.ndarray]:
+    """Damped least squares IK of body origins onto ``targets (T, K, 3)`` (metres, world).
+
+    ``target_bodies`` ``(K,)`` body ids; ``init`` ``(57,)`` the start of the first frame; every later frame
+    starts from the previous solution. Each step minimises
+    ``|J dq - r|^2 + damping^2 |dq|^2 + posture^2 |theta + dtheta|^2`` (the last term pulls the angles
+    towards the zero pose so that redundant combinations stay put). Unknowns: base position, base orientation (world-frame rotation
+    increments) and the 50 angles, clipped to the joint ranges after each step. ``weights`` ``(K,)``
+    scale each target's rows. Returns qpos ``(T, 57)`` and residual distances ``(T, K)`` metres.
+    """
+    targets = np.asarray(targets, dtype=float)
+    target_bodies = np.asarray(target_bodies, dtype=int)
+    w = np.ones(len(target_bodies)) if weights is None else np.asarray(weights, dtype=float)
+    w3 = np.repeat(w, 3)
+    zeros = np.zeros((len(target_bodies), 3))
+    q = np.array(init, dtype=float)
+    qpos = np.empty((len(targets), 57))
+    residual = np.empty(targets.shape[:2])
+    reg = damping ** 2 * np.eye(56)
+    reg[6:, 6:] += posture ** 2 * np.eye(56 - 6)
+    for t, goal in enumerate(targets):
+        for _ in range(first_iterations if t == 0 else iterations):
+            pos, jac = forward_points_and_jacobians(body, q, target_bodies, zeros, frame="world")
+            r = (goal - pos).ravel() * w3
+            full = np.concatenate([np.broadcast_to(np.eye(3), (len(pos), 3, 3)), _skew_columns(pos - q[:3]), jac],
+                                  axis=2).reshape(-1, 56) * w3[:, None]
+            rhs = full.T @ r
+            rhs[6:] -= posture ** 2 * q[body.angle_qpos_index]
+            step = np.linalg.solve(full.T @ full + reg, rhs)
+            q[:3] += step[:3]
+            q[3:7] = geometry.normalize(geometry.multiply(geometry.exp(step[3:6]), q[3:7]))
+            q[body.angle_qpos_index] = body.clip_angles(q[body.angle_qpos_index] + step[6:])
+            if np.max(np.abs(step)) < STEP_TOLERANCE:
+                break
+        pos = forward_points_and_jacobians(body, q, target_bodies, zeros, frame="world")[0]
+        qpos[t], residual[t] = q, np.linalg.norm(goal - pos, axis=1)
+    return qpos, residual
+
+
+def ground_offset(body: BodyModel, qpos: np.ndarray) -> float:
+    """Height (m) of the lowest point of the feet and toes over a clip ``(T, 57)``."""
+    geoms = np.flatnonzero(np.isin(body.model.geom_bodyid, [body.body_id(n) for n in FOOT_BODIES]))
+    return float(geom_z_range(body, qpos, geoms)[:, :, 0].min())
+
+
+def retarget(positions: np.ndarray, joint_names: tuple[str, ...] | list[str], fps: float, *,
+             unit_m: float = 1.0, up: str = "y", fps_out: float | None = 30.0,
+             mapping: dict[str, str | None] | None = None, body: BodyModel | None = None,
+             damping: float = DEFAULT_DAMPING, iterations: int = DEFAULT_ITERATIONS,
+             posture: float = DEFAULT_POSTURE, level_floor: bool = True, where: str = "source skeleton") -> RetargetResult:
+    """Source joint positions ``(T, J, 3)`` (source units, ``up`` axis ``"y"`` or ``"z"``) at ``fps`` ->
+    humanoid56 configurations at ``fps_out`` (None: keep ``fps``). See the module docstring for the steps."""
+    body = body or BodyModel.load()
+    if up not in ("y", "z"):
+        raise RetargetError(f"{where}: up axis must be 'y' or 'z', got {up!r}")
+    positions = np.asarray(positions, dtype=float) * unit_m
+    if positions.ndim != 3 or positions.shape[1] != len(joint_names) or positions.shape[2] != 3:
+        raise RetargetError(f"{where}: positions must be (T, {len(joint_names)}, 3), got {positions.shape}")
+    if len(positions) < 2:
+        raise RetargetError(f"{where}: needs at least 2 frames, got {len(positions)}")
+    correspondence = resolve_correspondence(joint_names, mapping, body.body_names, where)
+    missing = [b for b in REQUIRED_BODIES if b not in correspondence.values()]
+    if missing:
+        raise RetargetError(f"{where}: no source joint drives {', '.join(missing)} (needed for the base)")
+    if up == "y":
+        positions = y_up_to_z_up(positions)
+    if fps_out is not None and fps_out != fps:
+        positions = resample_positions(positions, fps, fps_out)
+    fps_final = float(fps_out or fps)
+    pairs = sorted((body.body_id(b), list(joint_names).index(j)) for j, b in correspondence.items())
+    bodies = [b for b, _ in pairs]
+    src = positions[:, [j for _, j in pairs]]
+    scale = height_scale(body, src, bodies)
+    targets = proportional_targets(body, src, bodies, scale)
+    k_pelvis = bodies.index(body.body_id("pelvis"))
+    init = body.zero_qpos()
+    init[:3] = targets[0, k_pelvis]
+    spine = next(n for n in ("thorax", "upperback", "lowerneck") if body.body_id(n) in bodies)
+    init[3:7] = base_frames(*(src[0, bodies.index(body.body_id(n))] for n in ("pelvis", "lfemur", "rfemur", spine)))
+    qpos, residual = solve_ik(body, targets, np.array(bodies), init, damping=damping, iterations=iterations,
+                                 posture=posture)
+    tilt = floor_tilt(body, qpos, fps_final) if level_floor else np.zeros(len(qpos))
+    qpos[:, 2] -= tilt
+    targets[:, :, 2] -= tilt[:, None]
+    dz = ground_offset(body, qpos)
+    qpos[:, 2] -= dz
+    targets[:, :, 2] -= dz
+    # The raw source skeleton at humanoid scale, moved with the targets (its root on the pelvis target).
+    shown = positions * scale
+    shown += (targets[:, k_pelvis] - scale * src[:, k_pelvis])[:, None]
+    return RetargetResult(qpos=qpos, fps=fps_final, targets=targets,
+                          target_bodies=tuple(body.body_names[b] for b in bodies), residual=residual,
+                          scale=scale, source_positions=shown)
+
+
+#: A foot whose origin moves slower than this (m/s, horizontally) is taken to be in stance.
+STANCE_SPEED = 0.25
+
+
+def stance_foot_heights(body: BodyModel, qpos: np.ndarray, fps: float, speed: float = STANCE_SPEED) -> np.ndarray:
+    """Lowest point (m, world z) of each foot (foot and toes geoms) on the frames where that foot's ankle
+    moves horizontally slower than ``speed`` m/s: a 1-D array over (frame, foot) pairs in stance."""
+    from harness.body import body_origins
+
+    qpos = np.asarray(qpos, dtype=float)
+    origins = body_origins(body, qpos)
+    heights = []
+    for side in ("l", "r"):
+        ankle = origins[:, body.body_id(f"{side}foot") - 1, :2]
+        v = np.linalg.norm(np.gradient(ankle, 1.0 / fps, axis=0), axis=1)
+        geoms = np.flatnonzero(np.isin(body.model.geom_bodyid, [body.body_id(f"{side}foot"),
+                                                                 body.body_id(f"{side}toes")]))
+        low = geom_z_range(body, qpos, geoms)[:, :, 0].min(axis=1)
+        heights.append(low[v < speed])
+    return np.concatenate(heights)
+
+
+#: Least horizontal extent (m) of the stance points before a floor slope is fitted: in-place motions
+#: (punches, jumps on the spot) leave the slope undetermined, and their floor is left as captured.
+LEVEL_MIN_SPAN = 1.0
+
+
+def floor_tilt(body: BodyModel, qpos: np.ndarray, fps: float, speed: float = STANCE_SPEED) -> np.ndarray:
+    """Height (m) of the captured floor's slope under the base, ``(T,)``: ``a x_t + b y_t`` with ``a, b`` the
+    least-squares plane through the lowest points of the feet in stance (zeros if the stance points span
+    less than ``LEVEL_MIN_SPAN`` m)."""
+    from harness.body import body_origins
+
+    qpos = np.asarray(qpos, dtype=float)
+    origins = body_origins(body, qpos)
+    points = []
+    for side in ("l", "r"):
+        ankle = origins[:, body.body_id(f"{side}foot") - 1]
+        v = np.linalg.norm(np.gradient(ankle[:, :2], 1.0 / fps, axis=0), axis=1)
+        geoms = np.flatnonzero(np.isin(body.model.geom_bodyid, [body.body_id(f"{side}foot"),
+                                                                 body.body_id(f"{side}toes")]))
+        low = geom_z_range(body, qpos, geoms)[:, :, 0].min(axis=1)
+        stance = v < speed
+        points.append(np.column_stack([ankle[stance, :2], low[stance]]))
+    pts = np.concatenate(points)
+    if len(pts) < 3 or np.ptp(pts[:, :2], axis=0).max() < LEVEL_MIN_SPAN:
+        return np.zeros(len(qpos))
+    coef = np.linalg.lstsq(np.column_stack([pts[:, :2], np.ones(len(pts))]), pts[:, 2], rcond=None)[0]
+    return qpos[:, :2] @ coef[:2]

@@ -1,0 +1,101 @@
+"""Alias tables, mapping files and capture sets (the real-data tests skip without ../shared)."""
+
+import numpy as np
+import pytest
+
+from harness import geometry
+from harness.motion.asf_amc import joint_names, load_asf
+from harness.motion.bvh import load_bvh
+from harness.motion.captures import CaptureSetError, load_capture_set, read_manifest
+from harness.motion.skeletons import (IGNORED, SkeletonMappingError, detect_dialect, load_mapping,
+                                      resolve_correspondence)
+from tests.conftest import require_mocap
+
+HEADER = "file,format,skeleton,subject,trial,class,start,end,fps,description\n"
+
+
+@pytest.mark.parametrize("name, dialect", [("09_01.bvh", "bvh-motionbuilder"), ("09_09.bvh", "bvh-motionbuilder"),
+                                           ("35_17.bvh", "bvh-motionbuilder"), ("131_02.bvh", "bvh-3dsmax"),
+                                           ("01.asf", "asf"), ("02.asf", "asf")])
+def test_every_joint_of_the_shared_files_maps_or_is_ignored(name, dialect, body):
+    directory = require_mocap()
+    path = directory / name
+    names = load_bvh(path).names if name.endswith(".bvh") else joint_names(load_asf(path))
+    assert detect_dialect(names) == dialect
+    mapping = resolve_correspondence(names, body_names=body.body_names)
+    ignored = [n for n in names if n not in mapping]
+    assert all(n in IGNORED[dialect] or n.endswith("_end") for n in ignored)
+    assert {"pelvis", "lfemur", "rfemur", "thorax", "head", "lwrist", "rtoes"} <= set(mapping.values())
+    assert len(set(mapping.values())) == len(mapping)          # no body driven twice
+
+
+def test_mapping_files_yaml_and_csv(tmp_path, body):
+    yml = tmp_path / "m.yaml"
+    yml.write_text("pelvis_j: pelvis\nthigh_l: lfemur\nfinger: ~\n")
+    csvf = tmp_path / "m.csv"
+    csvf.write_text("source,body\npelvis_j,pelvis\nthigh_l,lfemur\nfinger,\n")
+    for path in (yml, csvf):
+        m = load_mapping(path, body.body_names)
+        assert resolve_correspondence(["pelvis_j", "thigh_l", "finger"], m) == {"pelvis_j": "pelvis",
+                                                                                "thigh_l": "lfemur"}
+        with pytest.raises(SkeletonMappingError, match="not in the mapping file: tail"):
+            resolve_correspondence(["pelvis_j", "tail"], m)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("hip: femur_left\n")
+    with pytest.raises(SkeletonMappingError, match="key 'hip': unknown humanoid56 body 'femur_left'"):
+        load_mapping(bad, body.body_names)
+
+
+def test_unknown_skeleton_lists_unmapped_joints():
+    with pytest.raises(SkeletonMappingError, match="does not map .*Tail"):
+        resolve_correspondence(["Hips", "LeftUpLeg", "Tail"])
+
+
+def _manifest(tmp_path, rows):
+    path = tmp_path / "MANIFEST.csv"
+    path.write_text(HEADER + "".join(r + "\n" for r in rows))
+    return path
+
+
+@pytest.mark.parametrize("row, column, words", [
+    ("x.bvh,fbx,,1,1,walk,0,10,120,", "format", "unknown format 'fbx'"),
+    ("x.amc,amc,,1,1,walk,0,10,120,", "skeleton", "needs its ASF"),
+    ("x.bvh,bvh,,1,1,walk,ten,10,120,", "start", "not a number"),
+    ("x.bvh,bvh,,1,1,dance,0,10,120,", "class", "unknown class 'dance'"),
+])
+def test_manifest_errors_name_file_row_and_column(tmp_path, row, column, words):
+    path = _manifest(tmp_path, ["x.bvh,bvh,,1,1,walk,0,10,120,", row])
+    with pytest.raises(CaptureSetError) as exc:
+        read_manifest(path, classes=("walk", "run"))
+    assert str(exc.value).startswith(f"{path}: row 3, column {column!r}: ")
+    assert words in str(exc.value)
+
+
+def test_missing_file_and_range_beyond_the_file(tmp_path, body):
+    directory = require_mocap()
+    path = _manifest(tmp_path, ["absent.bvh,bvh,,9,1,run,1,20,120,"])
+    with pytest.raises(CaptureSetError, match=r"row 2, column 'file': no such file .*absent.bvh"):
+        load_capture_set(directory, path, body=body)
+    path = _manifest(tmp_path, ["09_01.bvh,bvh,,9,1,run,100,400,120,"])
+    with pytest.raises(CaptureSetError, match=r"row 2, column 'end': .* beyond the 149 frames"):
+        load_capture_set(directory, path, body=body)
+    path = _manifest(tmp_path, ["02_01.amc,amc,99.asf,2,1,walk,0,20,120,"])
+    with pytest.raises(CaptureSetError, match=r"row 2, column 'skeleton': no such file .*99.asf"):
+        load_capture_set(directory, path, body=body)
+
+
+def test_one_short_row_per_format(tmp_path, body):
+    directory = require_mocap()
+    path = _manifest(tmp_path, ["09_01.bvh,bvh,,9,1,run,1,41,120,", "131_02.bvh,bvh,,131,2,walk,0,40,120,",
+                                "02_01.amc,amc,02.asf,2,1,walk,0,41,120,", "02_01.amc,amc,02.asf,2,1,walk,40,81,120,"])
+    motions = load_capture_set(directory, path, fps=30.0, body=body)
+    assert [m.label for m in motions] == ["run", "walk", "walk", "walk"]
+    assert [m.subject for m in motions] == ["9", "131", "2", "2"]
+    assert len({m.demo for m in motions}) == 4
+    assert motions[0].source == "bvh:09_01.bvh[1:41]"
+    # 40 frames at 120 fps span 39/120 s: 10 frames at 30 fps.
+    assert [m.n_frames for m in motions] == [10, 10, 11, 11] and all(m.fps == 30.0 for m in motions)
+    for m in motions:
+        assert 0.8 < m.qpos[:, 2].mean() < 1.1                  # pelvis at standing height, not upside down
+        base_up = geometry.rotate(m.base_quat, np.array([0.0, 0.0, 1.0]))
+        assert np.all(base_up[:, 2] > 0.8)                      # upright

@@ -1,0 +1,73 @@
+"""Retargeting: IK recovers humanoid56's own configurations; the whole path on a synthetic source."""
+
+import numpy as np
+import pytest
+
+from harness import geometry
+from harness.body import body_origins, forward_points
+from harness.motion.retarget import RetargetError, retarget, solve_ik, y_up_to_z_up
+from harness.motion.skeletons import SkeletonMappingError
+
+
+def _pose(body, rng, n=3):
+    q = body.qpos(body.random_angles(rng, n, scale=0.3))
+    q[:, :3] += [0.2, -0.1, 0.0]
+    q[:, 3:7] = geometry.exp(np.array([0.05, -0.05, 0.7]))
+    return q
+
+
+def test_ik_recovers_known_configuration(body, rng):
+    # A motion from the zero pose to a random pose: each frame is warm-started from the one before.
+    q = _pose(body, rng, 1)
+    q = body.qpos(np.linspace(0.0, 1.0, 8)[:, None] * body.angles(q), q[0, :3], q[0, 3:7])
+    ids = np.arange(1, body.model.nbody)
+    targets = body_origins(body, q)
+    solved, residual = solve_ik(body, targets, ids, body.zero_qpos(), posture=0.0, first_iterations=300,
+                                iterations=60)
+    assert residual.max() < 1e-3
+    # Independent check of the residual: MuJoCo's own forward kinematics of the solution.
+    np.testing.assert_allclose(forward_points(body, solved, ids, np.zeros((len(ids), 3))), targets, atol=1e-3)
+    assert np.all(body.angles(solved) >= body.lower - 1e-12) and np.all(body.angles(solved) <= body.upper + 1e-12)
+
+
+def test_y_up_conversion_is_a_rotation_not_a_mirror():
+    basis = y_up_to_z_up(np.eye(3))
+    assert np.linalg.det(basis) == pytest.approx(1.0)
+    # CMU: x left, y up, z forward -> humanoid: y left, z up, x forward.
+    np.testing.assert_array_equal(basis, [[0, 1, 0], [0, 0, 1], [1, 0, 0]])
+
+
+def test_retarget_of_the_humanoid_itself_is_exact(body, rng):
+    q = _pose(body, rng, 4)
+    # A straight spine: the hips are placed on the base orientation estimated from the hips line and the
+    # pelvis-to-thorax direction, which is the true base orientation only when the spine is straight.
+    q[:, 7:16] = 0.0
+    names = body.body_names[1:]
+    # The humanoid as a y-up source in centimetres, 1.25 times larger: units, up axis and scale must cancel.
+    src = body_origins(body, q) * 1.25 * 100.0
+    src = np.stack([src[..., 1], src[..., 2], src[..., 0]], axis=-1)
+    result = retarget(src, names, 30.0, unit_m=0.01, up="y", fps_out=None, body=body,
+                      mapping={n: n for n in names}, posture=0.0, level_floor=False)
+    assert result.scale == pytest.approx(0.8, rel=1e-9)
+    assert result.residual.max() < 1e-3
+    got = body_origins(body, result.qpos)
+    want = body_origins(body, q)
+    # Same pose up to the grounding shift (a constant vertical offset).
+    shift = (got - want)[..., 2].mean()
+    np.testing.assert_allclose(got - [0, 0, shift], want, atol=2e-3)
+
+
+def test_retarget_resamples_before_solving(body, rng):
+    q = _pose(body, rng, 13)
+    names = body.body_names[1:]
+    src = body_origins(body, q)
+    result = retarget(src, names, 120.0, up="z", fps_out=30.0, body=body, mapping={n: n for n in names})
+    assert result.qpos.shape == (4, 57) and result.fps == 30.0
+
+
+def test_missing_hips_or_unmapped_joints_are_errors(body):
+    src = np.zeros((3, 3, 3))
+    with pytest.raises(RetargetError, match="lfemur, rfemur"):
+        retarget(src, ("a", "b", "c"), 30.0, body=body, mapping={"a": "pelvis", "b": None, "c": None})
+    with pytest.raises(SkeletonMappingError, match="Tail, Wing"):
+        retarget(src, ("Hips", "Tail", "Wing"), 30.0, body=body)
