@@ -130,7 +130,7 @@ def _checked_rows(run: RunSpec, rows: Any) -> list[dict]:
 def _execute_local(todo: list[RunSpec], run_fn: RunFunction, jobs: int) -> Iterable[tuple[RunSpec, Any]]:
     if jobs <= 1:
         for run in todo:
-            yield run, run_fn(run)
+            yield run, _call(run_fn, run)
         return
     # spawn, not fork: MuJoCo, EGL and numba threads in the parent do not survive a fork reliably.
     with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
@@ -139,7 +139,8 @@ def _execute_local(todo: list[RunSpec], run_fn: RunFunction, jobs: int) -> Itera
             while pending:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in sorted(done, key=lambda f: pending[f].key):
-                    yield pending.pop(fut), fut.result()
+                    run = pending.pop(fut)
+                    yield run, _call(lambda _: fut.result(), run)
         finally:
             for fut in pending:
                 fut.cancel()
@@ -154,7 +155,7 @@ def _execute_dask(todo: list[RunSpec], run_fn: RunFunction, address: str) -> Ite
     with Client(address) as client:
         futures = {client.submit(run_fn, run, key=f"run-{run.key}-{run.seed}", pure=False): run for run in todo}
         for fut in as_completed(list(futures)):
-            yield futures[fut], fut.result()
+            yield futures[fut], _call(lambda _: fut.result(), futures[fut])
 
 
 def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunction | None = None, jobs: int = 1,
@@ -184,7 +185,7 @@ def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunctio
                       else _execute_local(todo, run_fn, jobs))
             bar = tqdm(total=len(todo), desc=scenario.name, unit="run", disable=not progress, leave=False)
             try:
-                for run, rows in _guarded(stream):
+                for run, rows in stream:
                     journal.append(run.key, _checked_rows(run, rows))
                     bar.update(1)
             finally:
@@ -194,17 +195,12 @@ def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunctio
     return table
 
 
-def _guarded(stream: Iterable[tuple[RunSpec, Any]]) -> Iterable[tuple[RunSpec, Any]]:
-    """Re-raise a run's ``HarnessError`` naming the run (the journal keeps every run finished before it)."""
-    it = iter(stream)
-    while True:
-        try:
-            item = next(it)
-        except StopIteration:
-            return
-        except HarnessError as exc:
-            raise RunError(f"a run failed: {exc} (finished runs are kept; re-run to resume)") from exc
-        yield item
+def _call(fn: Callable[[RunSpec], Any], run: RunSpec) -> Any:
+    """``fn(run)``, with a ``HarnessError`` re-raised naming the run (finished runs stay in the journal)."""
+    try:
+        return fn(run)
+    except HarnessError as exc:
+        raise RunError(f"run {run.key} failed: {exc} (finished runs are kept; re-run to resume)") from exc
 
 
 def _scenario_json(scenario: Scenario, digest: str) -> str:
