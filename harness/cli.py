@@ -55,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _load_command_modules() -> None:
     """Modules that register commands; imported here so that ``--help`` lists them all."""
+    import harness.evaluation.cli  # noqa: F401
 
 
 def main(argv: list[str] | None = None) -> int:
