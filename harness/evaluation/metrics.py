@@ -96,6 +96,8 @@ def reprojection_px(body: BodyModel, est_qpos_cam: np.ndarray, markers: SurfaceP
     frame, marker = np.asarray(frame, dtype=int), np.asarray(marker, dtype=int)
     if len(frame) == 0:
         return float("nan")
-    pts = forward_points(body, np.asarray(est_qpos_cam, dtype=float), markers.body, markers.local, frame="world")
-    uv = project(intrinsics, pts[frame, marker])
+    used, slot = np.unique(frame, return_inverse=True)     # only the frames that have observations
+    qpos = np.asarray(est_qpos_cam, dtype=float)[used]
+    pts = forward_points(body, qpos, markers.body, markers.local, frame="world")
+    uv = project(intrinsics, pts[slot, marker])
     return float(np.mean(np.linalg.norm(uv - np.asarray(observed_uv, dtype=float), axis=-1)))

@@ -116,7 +116,13 @@ def plan(scenario: Scenario, cache_dir: str | Path) -> list[RunSpec]:
 
 def default_run_function() -> RunFunction:
     """The lead's pipeline, imported only when a real evaluation runs."""
-    return importlib.import_module("harness.evaluation.pipeline").run_one
+    try:
+        return importlib.import_module("harness.evaluation.pipeline").run_one
+    except ModuleNotFoundError as exc:
+        if exc.name != "harness.evaluation.pipeline":
+            raise
+        raise RunError("harness.evaluation.pipeline is not installed in this checkout: there is no run "
+                       "function to evaluate with") from None
 
 
 def _checked_rows(run: RunSpec, rows: Any) -> list[dict]:
@@ -174,13 +180,13 @@ def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunctio
     runs = plan(scenario, cache_dir)
     if limit is not None:
         runs = runs[:max(0, int(limit))]
+    run_fn = run_fn or default_run_function()   # before touching results_dir: a missing pipeline writes nothing
     with Journal(results_dir, digest, fresh=fresh) as journal:
         write_text_atomic(results_dir / "scenario.json", _scenario_json(scenario, digest))
         todo = [r for r in runs if r.key not in journal]
         if todo:
             from tqdm import tqdm
 
-            run_fn = run_fn or default_run_function()
             stream = (_execute_dask(todo, run_fn, scheduler) if scheduler
                       else _execute_local(todo, run_fn, jobs))
             bar = tqdm(total=len(todo), desc=scenario.name, unit="run", disable=not progress, leave=False)
