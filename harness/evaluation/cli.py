@@ -1,0 +1,130 @@
+"""Commands: ``evaluate``, ``report``, ``regress``, ``rebaseline`` (registered with ``harness.cli.command``)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from harness.cli import command
+
+DEFAULT_RESULTS = "results"
+DEFAULT_CI = "scenarios/ci.yaml"
+DEFAULT_BASELINE = "results/baseline"
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--results", default=DEFAULT_RESULTS, metavar="DIR",
+                   help="results root; each scenario writes DIR/<name>/ (default: results)")
+    p.add_argument("--mocap-dir", default=None, metavar="DIR",
+                   help="capture directory for capture scenarios (default: database.capture_dir or $HARNESS_MOCAP_DIR)")
+
+
+def _running(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--jobs", type=int, default=1, metavar="N", help="local worker processes (default 1)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="run on this Dask scheduler instead")
+    p.add_argument("--fresh", action="store_true",
+                   help="set aside runs stored under an older version of the scenario and start again")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _evaluate_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", help="scenario YAML file")
+    _common(p)
+    _running(p)
+    p.add_argument("--limit", type=int, default=None, metavar="N", help="only the first N runs (smoke test)")
+
+
+def _load(path: str, mocap_dir: str | None):
+    from harness.evaluation.scenario import load_scenario, resolve_capture
+
+    return resolve_capture(load_scenario(path), mocap_dir)
+
+
+def _check_jobs(args) -> None:
+    from harness.evaluation.runner import RunError
+
+    if args.jobs < 1:
+        raise RunError(f"--jobs: must be at least 1, got {args.jobs}")
+
+
+def _run(scenario, args, limit=None):
+    from harness.evaluation.report import make_report
+    from harness.evaluation.runner import run_scenario
+
+    _check_jobs(args)
+    out = Path(args.results) / scenario.name
+    rows = run_scenario(scenario, out, jobs=args.jobs, scheduler=args.scheduler, limit=limit,
+                        cache_dir=Path(args.results) / "cache", fresh=args.fresh, progress=not args.quiet)
+    report = make_report(scenario, out, rows)
+    print(f"{scenario.name}: {rows['run_key'].nunique() if len(rows) else 0} runs -> {report}")
+    return out
+
+
+@command("evaluate", _evaluate_args)
+def _evaluate(args: argparse.Namespace) -> int:
+    """Run a scenario (resuming finished runs), then write its tables, plots and report."""
+    _run(_load(args.scenario, args.mocap_dir), args, args.limit)
+    return 0
+
+
+def _report_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", help="scenario YAML file")
+    _common(p)
+
+
+@command("report", _report_args)
+def _report(args: argparse.Namespace) -> int:
+    """Re-make a scenario's tables, plots and report from its stored runs."""
+    from harness.evaluation.journal import ResultsError
+    from harness.evaluation.report import make_report
+
+    scenario = _load(args.scenario, args.mocap_dir)
+    out = Path(args.results) / scenario.name
+    if not (out / "runs.jsonl").is_file():
+        raise ResultsError(f"{out / 'runs.jsonl'}: no runs yet (run `harness evaluate {args.scenario}`)")
+    print(make_report(scenario, out))
+    return 0
+
+
+def _regress_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", default=DEFAULT_CI, help=f"the CI scenario (default {DEFAULT_CI})")
+    p.add_argument("--baseline", default=DEFAULT_BASELINE, metavar="DIR",
+                   help=f"stored metrics and tolerances (default {DEFAULT_BASELINE})")
+    _common(p)
+    _running(p)
+    p.add_argument("--no-run", action="store_true", help="compare the stored results without running")
+
+
+@command("regress", _regress_args)
+def _regress(args: argparse.Namespace) -> int:
+    """Run the CI scenario and compare its metrics with the stored baseline; exit 1 on a regression."""
+    from harness.evaluation import regress
+    from harness.evaluation.scenario import scenario_hash
+
+    scenario = _load(args.scenario, args.mocap_dir)
+    out = Path(args.results) / scenario.name if args.no_run else _run(scenario, args)
+    table, baseline = regress.check(out, args.baseline)
+    if baseline.get("hash") not in (None, scenario_hash(scenario)):
+        print(f"note: the baseline was stored for scenario hash {baseline.get('hash')}, the scenario is now "
+              f"{scenario_hash(scenario)}", file=sys.stderr)
+    print(regress.format_table(table))
+    if regress.failed(table):
+        bad = table[table["verdict"].isin(["REGRESSED", "MISSING"])]
+        print(f"regression: {len(bad)} metric(s) outside tolerance: {', '.join(bad['metric'])}", file=sys.stderr)
+        return 1
+    print("no regression")
+    return 0
+
+
+@command("rebaseline", _regress_args)
+def _rebaseline(args: argparse.Namespace) -> int:
+    """Run the CI scenario and store its metrics as the new regression baseline (a deliberate act)."""
+    from harness.evaluation import regress
+    from harness.evaluation.scenario import scenario_hash
+
+    scenario = _load(args.scenario, args.mocap_dir)
+    out = Path(args.results) / scenario.name if args.no_run else _run(scenario, args)
+    path = regress.rebaseline(out, args.baseline, scenario.name, scenario_hash(scenario))
+    print(f"stored {path}")
+    return 0

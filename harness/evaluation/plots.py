@@ -1,0 +1,149 @@
+"""PNG plots of an evaluation (matplotlib, Agg back-end): metrics against each swept key, accuracy against the
+measured occlusion, and confusion matrices per method.
+
+A plot against a swept key pools the runs of every other swept key (the marginal effect of that key); points
+are means with 95% bootstrap intervals, one line per method.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from harness.evaluation.stats import bootstrap_ci
+
+# What to draw against each sweepable key (anything else numeric gets the default pair).
+PLOT_METRICS: dict[str, tuple[str, ...]] = {
+    "occluders.amount": ("correct", "frame_accuracy", "mpjpe_rel_mm"),
+    "markers.count": ("correct", "mpjpe_rel_mm", "angle_rms_deg", "base_pos_err_m"),
+    "observation.noise_px": ("correct", "mpjpe_rel_mm", "base_pos_err_m", "reproj_px"),
+    "observation.dropout": ("correct", "mpjpe_rel_mm"),
+    "observation.outliers": ("correct", "mpjpe_rel_mm"),
+    "camera.azimuth": ("correct", "mpjpe_rel_mm", "base_pos_err_m", "base_rot_err_deg"),
+    "camera.elevation": ("correct", "mpjpe_rel_mm", "base_pos_err_m", "base_rot_err_deg"),
+    "camera.distance": ("correct", "mpjpe_rel_mm", "base_depth_err_m"),
+    "engine.particles": ("correct", "base_pos_err_m", "mpjpe_rel_mm", "ms_per_frame"),
+}
+DEFAULT_METRICS = ("correct", "mpjpe_rel_mm")
+LABELS = {"correct": "accuracy", "frame_accuracy": "per-frame accuracy", "mpjpe_rel_mm": "MPJPE rel. (mm)",
+          "mpjpe_abs_mm": "MPJPE abs. (mm)", "angle_rms_deg": "joint angle RMS (deg)",
+          "base_pos_err_m": "base position error (m)", "base_depth_err_m": "base depth error (m)",
+          "base_rot_err_deg": "base rotation error (deg)", "reproj_px": "reprojection (px)",
+          "ms_per_frame": "ms per frame"}
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> None:
+    from harness.io import write_atomic
+
+    write_atomic(path, lambda fh: fig.savefig(fh, format="png", dpi=100, metadata={"Software": None}))
+
+
+def _numeric(values) -> bool:
+    return all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) for v in values)
+
+
+def _mean_ci(x: np.ndarray, seed: int) -> tuple[float, float, float]:
+    x = x[np.isfinite(x)]
+    if not len(x):
+        return np.nan, np.nan, np.nan
+    lo, hi = bootstrap_ci(x, np.random.default_rng(seed), 1000)
+    return float(np.mean(x)), lo, hi
+
+
+def plot_against(rows: pd.DataFrame, key: str, path: Path, seed: int = 0) -> bool:
+    """Metrics against swept ``key``, one panel per metric, one line per method; False if nothing to draw."""
+    metrics = [m for m in PLOT_METRICS.get(key, DEFAULT_METRICS) if m in rows and rows[m].notna().any()]
+    values = list(dict.fromkeys(rows[key]))
+    if not metrics or not _numeric(values):
+        return False
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(metrics), figsize=(4.2 * len(metrics), 3.4), squeeze=False)
+    xs = sorted(values)
+    for ax, metric in zip(axes[0], metrics):
+        for method, g in rows.groupby("method", sort=False):
+            stats = [_mean_ci(pd.to_numeric(g.loc[g[key] == v, metric], errors="coerce").to_numpy(float), seed)
+                     for v in xs]
+            mean, lo, hi = (np.array(s) for s in zip(*stats))
+            if np.isfinite(mean).any():
+                ax.errorbar(xs, mean, yerr=[mean - lo, hi - mean], marker="o", capsize=3, label=method)
+        ax.set_xlabel(key)
+        ax.set_ylabel(LABELS.get(metric, metric))
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+    return True
+
+
+def plot_measured_occlusion(rows: pd.DataFrame, path: Path) -> bool:
+    """Accuracy per condition against the measured occlusion (self + obstacle, mean over runs)."""
+    if not {"self_occlusion", "obstacle_occlusion"} <= set(rows) or rows["obstacle_occlusion"].isna().all():
+        return False
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5, 3.6))
+    for method, g in rows.groupby("method", sort=False):
+        per = g.assign(occ=g["self_occlusion"] + g["obstacle_occlusion"]).groupby("condition", sort=False)
+        pts = per.agg(occ=("occ", "mean"), acc=("correct", "mean")).sort_values("occ")
+        ax.plot(pts["occ"], pts["acc"], marker="o", label=method)
+    ax.set_xlabel("measured occlusion (fraction of markers hidden)")
+    ax.set_ylabel("accuracy")
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+    return True
+
+
+def plot_confusion(matrix: pd.DataFrame, title: str, path: Path) -> None:
+    """A count matrix (true rows x predicted columns) as a row-normalised heat map with the counts written in."""
+    plt = _pyplot()
+    counts = matrix.to_numpy(dtype=float)
+    frac = counts / np.maximum(counts.sum(axis=1, keepdims=True), 1.0)
+    n = len(matrix.columns)
+    fig, ax = plt.subplots(figsize=(1.0 + 0.55 * n, 0.8 + 0.5 * len(matrix)))
+    ax.imshow(frac, cmap="Blues", vmin=0.0, vmax=1.0)
+    for (i, j), c in np.ndenumerate(counts):
+        if c:
+            ax.text(j, i, int(c), ha="center", va="center", fontsize=7, color="white" if frac[i, j] > 0.5 else "black")
+    ax.set_xticks(range(n), [str(c) for c in matrix.columns], rotation=60, ha="right", fontsize=8)
+    ax.set_yticks(range(len(matrix)), [str(c) for c in matrix.index], fontsize=8)
+    ax.set_xlabel("predicted")
+    ax.set_ylabel("true")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def write_plots(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str]) -> list[str]:
+    """Every plot the scenario calls for, under ``out_dir/plots``; returns their paths relative to ``out_dir``."""
+    from harness.evaluation.tables import confusion
+
+    out_dir = Path(out_dir)
+    made = []
+    for key in swept:
+        name = f"plots/vs_{key.replace('.', '_')}.png"
+        if plot_against(rows, key, out_dir / name):
+            made.append(name)
+    if "occluders.amount" in swept and plot_measured_occlusion(rows, out_dir / "plots/accuracy_vs_measured_occlusion.png"):
+        made.append("plots/accuracy_vs_measured_occlusion.png")
+    pooled = rows.assign(condition="all conditions")
+    for (_, method), mat in confusion(pooled, classes).items():
+        name = f"plots/confusion_{method}.png"
+        plot_confusion(mat, f"{method}: all conditions, {int(mat.to_numpy().sum())} runs", out_dir / name)
+        made.append(name)
+    return made

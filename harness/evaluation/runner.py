@@ -1,0 +1,231 @@
+"""The runner: a scenario becomes runs (conditions x repeats x test motions), executed in parallel, journaled.
+
+Each run is identified by its *run key* ``c<condition>/r<repeat>/<class>/d<demo>`` (zero-padded, so the keys
+sort in plan order within a class) and gets a seed derived with ``numpy.random.SeedSequence`` from the scenario
+seed, the repeat, the test class and the test demo. The condition is deliberately *not* part of the seed:
+every condition of a sweep sees the same marker placements, noise draws and particle initialisations (common
+random numbers), so differences between conditions come from the swept value and paired comparisons are tight.
+
+Finished runs are appended to ``runs.jsonl`` (see ``journal``) as they complete, in whatever order; the
+table returned (and written as ``runs.csv``) is sorted by run key, so it does not depend on completion order or
+on how many times the sweep was interrupted and resumed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+from collections.abc import Callable, Iterable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from harness.errors import HarnessError
+from harness.evaluation.journal import Journal
+from harness.evaluation.journal import read as read_journal
+from harness.evaluation.scenario import Scenario, conditions, read_manifest, scenario_hash
+from harness.io import write_text_atomic
+
+RunFunction = Callable[["RunSpec"], list[dict]]
+IDENTITY_COLUMNS = ("run_key", "scenario", "condition", "repeat", "test_class", "test_demo", "seed")
+
+
+class RunError(HarnessError):
+    """A run function failed or returned something that is not one row per method."""
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything one run needs. ``config`` is the condition's resolved scenario (swept values applied).
+
+    swept: the condition's ``(dotted key, value)`` pairs. test_demo: the performer's demo index (procedural:
+    held out, ``train_demos + i``) or the demo's position among its class's manifest rows (capture).
+    seed: the run's seed (non-negative int below 2**63). cache_dir: where the pipeline caches databases.
+    """
+
+    config: Scenario
+    condition: int
+    condition_label: str
+    swept: tuple[tuple[str, Any], ...]
+    repeat: int
+    test_class: str
+    test_demo: int
+    seed: int
+    cache_dir: str
+
+    @property
+    def key(self) -> str:
+        return run_key(self.condition, self.repeat, self.test_class, self.test_demo)
+
+    def rng(self) -> np.random.Generator:
+        """The run's generator (a fresh one on every call, so that repeated calls are identical)."""
+        return np.random.default_rng(self.seed)
+
+    def identity(self) -> dict[str, Any]:
+        """The identity columns the runner adds to each of the run's rows, swept keys included."""
+        out = {"run_key": self.key, "scenario": self.config.name, "condition": self.condition_label}
+        out.update({k: (v if isinstance(v, (int, float, str, bool)) else str(v)) for k, v in self.swept})
+        out.update({"repeat": self.repeat, "test_class": self.test_class, "test_demo": self.test_demo,
+                    "seed": self.seed})
+        return out
+
+
+def run_key(condition: int, repeat: int, test_class: str, test_demo: int) -> str:
+    return f"c{condition:03d}/r{repeat:03d}/{test_class}/d{test_demo:03d}"
+
+
+def _word(text: str) -> int:
+    """A 32-bit integer from a string, stable across processes and Python versions (unlike ``hash``)."""
+    return int.from_bytes(hashlib.sha256(text.encode()).digest()[:4], "little")
+
+
+def derive_seed(scenario_seed: int, repeat: int, test_class: str, test_demo: int) -> int:
+    """The run's seed: ``SeedSequence([scenario seed, repeat, word(class), demo])`` folded to 63 bits."""
+    ss = np.random.SeedSequence([int(scenario_seed), int(repeat), _word(test_class), int(test_demo)])
+    lo, hi = ss.generate_state(2, np.uint32)
+    return int((int(hi) << 32 | int(lo)) & (2**63 - 1))
+
+
+def motions_under_test(config: Scenario) -> list[tuple[str, int]]:
+    """``(class, demo index)`` of every test motion: held-out procedural demos, or every manifest demo of the
+    listed classes (the pipeline trains each capture split's database without the runs it tests)."""
+    db = config.database
+    if db.source == "procedural":
+        return [(c, db.train_demos + i) for c in config.classes for i in range(config.test.demos_per_class)]
+    if db.capture_dir is None or db.classes is None:
+        raise RunError(f"{config.name}: capture scenario not resolved (call scenario.resolve_capture first)")
+    rows = read_manifest(Path(db.capture_dir) / db.manifest)
+    return [(c, i) for c in db.classes for i in range(sum(r["class"] == c for r in rows))]
+
+
+def plan(scenario: Scenario, cache_dir: str | Path) -> list[RunSpec]:
+    """Every run of a scenario, sorted by run key."""
+    runs = []
+    for cond in conditions(scenario):
+        for rep in range(scenario.repeats):
+            for cls, demo in motions_under_test(cond.config):
+                runs.append(RunSpec(cond.config, cond.index, cond.label, cond.values, rep, cls, demo,
+                                    derive_seed(scenario.seed, rep, cls, demo), str(cache_dir)))
+    return sorted(runs, key=lambda r: r.key)
+
+
+def default_run_function() -> RunFunction:
+    """The lead's pipeline, imported only when a real evaluation runs."""
+    try:
+        return importlib.import_module("harness.evaluation.pipeline").run_one
+    except ModuleNotFoundError as exc:
+        if exc.name != "harness.evaluation.pipeline":
+            raise
+        raise RunError("harness.evaluation.pipeline is not installed in this checkout: there is no run "
+                       "function to evaluate with") from None
+
+
+def _checked_rows(run: RunSpec, rows: Any) -> list[dict]:
+    if not isinstance(rows, list) or not rows or not all(isinstance(r, dict) and "method" in r for r in rows):
+        raise RunError(f"run {run.key}: the run function must return a non-empty list of dicts with a "
+                       f"'method' key, got {type(rows).__name__}")
+    identity = run.identity()
+    return [identity | row for row in rows]
+
+
+def _execute_local(todo: list[RunSpec], run_fn: RunFunction, jobs: int) -> Iterable[tuple[RunSpec, Any]]:
+    if jobs <= 1:
+        for run in todo:
+            yield run, _call(run_fn, run)
+        return
+    # spawn, not fork: MuJoCo, EGL and numba threads in the parent do not survive a fork reliably.
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
+        pending = {pool.submit(run_fn, run): run for run in todo}
+        try:
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in sorted(done, key=lambda f: pending[f].key):
+                    run = pending.pop(fut)
+                    yield run, _call(lambda _: fut.result(), run)
+        finally:
+            for fut in pending:
+                fut.cancel()
+
+
+def _execute_dask(todo: list[RunSpec], run_fn: RunFunction, address: str) -> Iterable[tuple[RunSpec, Any]]:
+    try:
+        from dask.distributed import Client, as_completed
+    except ImportError:
+        raise RunError(f"--scheduler {address}: dask.distributed is not installed "
+                       f"(pip install 'harness[dask]')") from None
+    with Client(address) as client:
+        futures = {client.submit(run_fn, run, key=f"run-{run.key}-{run.seed}", pure=False): run for run in todo}
+        for fut in as_completed(list(futures)):
+            yield futures[fut], _call(lambda _: fut.result(), futures[fut])
+
+
+def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunction | None = None, jobs: int = 1,
+                 scheduler: str | None = None, limit: int | None = None, cache_dir: str | Path | None = None,
+                 fresh: bool = False, progress: bool = True) -> pd.DataFrame:
+    """Run every run of ``scenario`` not yet in ``results_dir/runs.jsonl``; return all rows sorted by run key.
+
+    results_dir: this scenario's directory (``results/<name>``). limit: only the first N runs of the plan
+    (a smoke test; later calls without it complete the rest). cache_dir: database cache (default
+    ``results_dir/../cache``, shared between scenarios). fresh: set aside runs of an older scenario version.
+    Also writes ``scenario.json`` (resolved scenario and hash) and the sorted ``runs.csv``.
+    """
+    results_dir = Path(results_dir)
+    cache_dir = Path(cache_dir) if cache_dir is not None else results_dir.parent / "cache"
+    digest = scenario_hash(scenario)
+    runs = plan(scenario, cache_dir)
+    if limit is not None:
+        runs = runs[:max(0, int(limit))]
+    run_fn = run_fn or default_run_function()   # before touching results_dir: a missing pipeline writes nothing
+    with Journal(results_dir, digest, fresh=fresh) as journal:
+        write_text_atomic(results_dir / "scenario.json", _scenario_json(scenario, digest))
+        todo = [r for r in runs if r.key not in journal]
+        if todo:
+            from tqdm import tqdm
+
+            stream = (_execute_dask(todo, run_fn, scheduler) if scheduler
+                      else _execute_local(todo, run_fn, jobs))
+            bar = tqdm(total=len(todo), desc=scenario.name, unit="run", disable=not progress, leave=False)
+            try:
+                for run, rows in stream:
+                    journal.append(run.key, _checked_rows(run, rows))
+                    bar.update(1)
+            finally:
+                bar.close()
+    table = load_rows(results_dir, digest)
+    write_text_atomic(results_dir / "runs.csv", table.to_csv(index=False))
+    return table
+
+
+def _call(fn: Callable[[RunSpec], Any], run: RunSpec) -> Any:
+    """``fn(run)``, with a ``HarnessError`` re-raised naming the run (finished runs stay in the journal)."""
+    try:
+        return fn(run)
+    except HarnessError as exc:
+        raise RunError(f"run {run.key} failed: {exc} (finished runs are kept; re-run to resume)") from exc
+
+
+def _scenario_json(scenario: Scenario, digest: str) -> str:
+    import json
+
+    return json.dumps({"hash": digest, "scenario": scenario.model_dump(mode="json")}, indent=2, sort_keys=True) + "\n"
+
+
+def load_rows(results_dir: str | Path, digest: str | None = None) -> pd.DataFrame:
+    """The journal's rows as one table sorted by run key then method (rows of other hashes left out)."""
+    records = read_journal(Path(results_dir) / "runs.jsonl", repair=False)
+    seen: set[str] = set()
+    rows = []
+    for rec in sorted(records, key=lambda r: r["key"]):
+        if (digest is not None and rec["hash"] != digest) or rec["key"] in seen:
+            continue
+        seen.add(rec["key"])
+        rows.extend(rec["rows"])
+    table = pd.DataFrame(rows)
+    if len(table):
+        table = table.sort_values(["run_key", "method"], kind="stable").reset_index(drop=True)
+    return table

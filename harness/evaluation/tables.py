@@ -1,0 +1,189 @@
+"""Tables from the run rows: per condition and method summaries with bootstrap intervals, per-class recognition,
+confusion matrices, paired tests between methods, and the pooled metrics CI compares. CSV and Markdown.
+
+Input is the runner's table (one row per run and method, columns as listed in ``docs/evaluation.md``). Every
+table is sorted deterministically and every number formatted the same way, so identical rows give identical
+files. Timing (``ms_per_frame``) is reported but kept in its own columns so that identity checks can drop it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from harness.evaluation.cache import stable_hash
+from harness.evaluation.stats import N_BOOT, bootstrap_ci, mcnemar_exact, wilcoxon_paired
+from harness.io import write_text_atomic
+
+RECOGNITION = ("correct", "frame_accuracy", "time_to_correct_s")
+RECOVERY = ("angle_rms_deg", "mpjpe_rel_mm", "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m",
+            "base_rot_err_deg", "reproj_px")
+SCENE = ("self_occlusion", "obstacle_occlusion", "n_frames", "mean_flows")
+TIMING = ("ms_per_frame",)
+METRICS = RECOGNITION + RECOVERY + SCENE + TIMING
+METHOD_ORDER = ("full", "gt_base", "no_database", "joint_space")
+HEADLINE = ("correct", "frame_accuracy", "time_to_correct_s", "angle_rms_deg", "mpjpe_rel_mm", "mpjpe_abs_mm",
+            "base_pos_err_m", "base_rot_err_deg", "reproj_px")
+
+
+def _method_rank(m: str) -> int:
+    return METHOD_ORDER.index(m) if m in METHOD_ORDER else len(METHOD_ORDER)
+
+
+def _order(df: pd.DataFrame, by: list[str]) -> pd.DataFrame:
+    """Sort by condition (first appearance in run-key order), then method in the canonical order, then ``by``."""
+    if not len(df):
+        return df
+    cond_rank = {c: i for i, c in enumerate(dict.fromkeys(df["condition"]))} if "condition" in df else {}
+    key = df.assign(_c=df["condition"].map(cond_rank) if cond_rank else 0,
+                    _m=df["method"].map(_method_rank) if "method" in df else 0)
+    return key.sort_values(["_c", "_m", *by], kind="stable").drop(columns=["_c", "_m"]).reset_index(drop=True)
+
+
+def summary(rows: pd.DataFrame, swept: list[str], n_boot: int = N_BOOT, seed: int = 0) -> pd.DataFrame:
+    """Long table: condition, swept keys, method, metric, n (finite values), mean, std (ddof=1), ci_lo, ci_hi.
+
+    The bootstrap generator is seeded per (condition, method, metric) from ``seed``, so that every cell is
+    reproducible on its own and does not depend on which other cells exist.
+    """
+    out = []
+    rows = rows.assign(_c=pd.Categorical(rows["condition"], list(dict.fromkeys(rows["condition"]))))
+    for (cond, method), g in rows.groupby(["_c", "method"], sort=False, observed=True):
+        first = g.iloc[0]
+        for metric in METRICS:
+            if metric not in g:
+                continue
+            x = pd.to_numeric(g[metric], errors="coerce").to_numpy(dtype=float)
+            x = x[np.isfinite(x)]
+            rng = np.random.default_rng(np.random.SeedSequence(
+                [seed, int(stable_hash([str(cond), method, metric])[:8], 16)]))
+            lo, hi = bootstrap_ci(x, rng, n_boot)
+            out.append({"condition": cond, **{k: first[k] for k in swept}, "method": method, "metric": metric,
+                        "n": len(x), "mean": float(np.mean(x)) if len(x) else math.nan,
+                        "std": float(np.std(x, ddof=1)) if len(x) > 1 else math.nan, "ci_lo": lo, "ci_hi": hi})
+    return _order(pd.DataFrame(out), ["metric"]) if out else pd.DataFrame(out)
+
+
+def per_class(rows: pd.DataFrame) -> pd.DataFrame:
+    """Recognition per condition, method and true class: runs, accuracy, frame accuracy, time to correct (s)."""
+    g = rows.groupby(["condition", "method", "class_true"], sort=False)
+    out = g.agg(runs=("correct", "size"), accuracy=("correct", "mean"), frame_accuracy=("frame_accuracy", "mean"),
+                time_to_correct_s=("time_to_correct_s", "mean")).reset_index()
+    return _order(out, ["class_true"])
+
+
+def confusion(rows: pd.DataFrame, classes: list[str]) -> dict[tuple[str, str], pd.DataFrame]:
+    """Count matrices (true class rows x predicted class columns) per (condition, method)."""
+    out = {}
+    for (cond, method), g in _order(rows, ["run_key"]).groupby(["condition", "method"], sort=False):
+        labels = list(classes) + sorted(set(g["class_pred"]) - set(classes))
+        m = pd.crosstab(pd.Categorical(g["class_true"], labels), pd.Categorical(g["class_pred"], labels),
+                        dropna=False)
+        m.index.name, m.columns.name = "true", "predicted"
+        out[(cond, method)] = m
+    return out
+
+
+def paired_tests(rows: pd.DataFrame, reference: str = "full") -> pd.DataFrame:
+    """Per condition, ``reference`` against every other method over the same runs: exact McNemar on final
+    recognition, Wilcoxon signed-rank on root-relative MPJPE (where both methods produce it)."""
+    out = []
+    for cond, g in rows.groupby("condition", sort=False):
+        wide = {m: s.set_index("run_key") for m, s in g.groupby("method")}
+        if reference not in wide:
+            continue
+        ref = wide[reference]
+        for other in sorted(set(wide) - {reference}, key=_method_rank):
+            o = wide[other]
+            common = ref.index.intersection(o.index).sort_values()
+            mc = mcnemar_exact(ref.loc[common, "correct"], o.loc[common, "correct"])
+            out.append({"condition": cond, "comparison": f"{reference} vs {other}", "test": "McNemar (exact)",
+                        "metric": "correct", "n_pairs": mc["n_pairs"],
+                        "effect": f"{reference} only right {mc['a_only']}, {other} only right {mc['b_only']}",
+                        "p_value": mc["p_value"]})
+            if "mpjpe_rel_mm" in ref and "mpjpe_rel_mm" in o:
+                w = wilcoxon_paired(ref.loc[common, "mpjpe_rel_mm"], o.loc[common, "mpjpe_rel_mm"])
+                if w["n_pairs"]:
+                    out.append({"condition": cond, "comparison": f"{reference} vs {other}",
+                                "test": "Wilcoxon signed-rank", "metric": "mpjpe_rel_mm", "n_pairs": w["n_pairs"],
+                                "effect": f"median difference {_fmt(w['median_diff'])} mm",
+                                "p_value": w["p_value"]})
+    return pd.DataFrame(out)
+
+
+def pooled_metrics(rows: pd.DataFrame) -> dict[str, float]:
+    """``{"<method>/<metric>": mean over every run of every condition}``: what ``harness regress`` compares."""
+    out = {}
+    for method, g in rows.groupby("method"):
+        for metric in RECOGNITION + RECOVERY + TIMING:
+            if metric in g:
+                x = pd.to_numeric(g[metric], errors="coerce").to_numpy(dtype=float)
+                x = x[np.isfinite(x)]
+                if len(x):
+                    out[f"{method}/{metric}"] = float(np.mean(x))
+    return dict(sorted(out.items()))
+
+
+def _fmt(x) -> str:
+    if isinstance(x, str):
+        return x
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "–"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    return f"{x:.4g}"
+
+
+def markdown(df: pd.DataFrame) -> str:
+    """A GitHub Markdown table of ``df`` with numbers at 4 significant digits."""
+    if not len(df):
+        return "_(no rows)_\n"
+    cols = [str(c) for c in df.columns]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    for row in df.itertuples(index=False):
+        lines.append("| " + " | ".join(_fmt(v) for v in row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def headline(summ: pd.DataFrame, swept: list[str], metrics: tuple[str, ...] = HEADLINE) -> pd.DataFrame:
+    """Wide table: one row per condition and method, ``mean [ci_lo, ci_hi]`` per metric, and the run count."""
+    if not len(summ):
+        return summ
+    rows = []
+    for (cond, method), g in summ.groupby(["condition", "method"], sort=False):
+        g = g.set_index("metric")
+        row = {"condition": cond, **{k: g.iloc[0][k] for k in swept}, "method": method,
+               "runs": int(g.loc["correct", "n"]) if "correct" in g.index else 0}
+        for m in metrics:
+            if m in g.index and g.loc[m, "n"] > 0:
+                r = g.loc[m]
+                row[m] = f"{_fmt(r['mean'])} [{_fmt(r['ci_lo'])}, {_fmt(r['ci_hi'])}]"
+            else:
+                row[m] = "–"
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str],
+                 n_boot: int = N_BOOT, seed: int = 0) -> dict[str, pd.DataFrame]:
+    """Write ``summary``, ``headline``, ``per_class``, ``confusion`` and ``paired_tests`` as CSV and Markdown,
+    and ``metrics.json`` (pooled metrics), under ``out_dir``. Returns the tables by name."""
+    out_dir = Path(out_dir)
+    summ = summary(rows, swept, n_boot, seed)
+    timing = summ[summ["metric"].isin(TIMING)] if len(summ) else summ
+    tables = {"summary": summ, "headline": headline(summ, swept), "per_class": per_class(rows),
+              "paired_tests": paired_tests(rows), "timing": headline(timing, swept, TIMING)}
+    conf = confusion(rows, classes)
+    long = [{"condition": c, "method": m, "true": t, "predicted": p, "count": int(mat.loc[t, p])}
+            for (c, m), mat in conf.items() for t in mat.index for p in mat.columns]
+    tables["confusion"] = pd.DataFrame(long)
+    for name, df in tables.items():
+        write_text_atomic(out_dir / f"{name}.csv", df.to_csv(index=False, float_format="%.10g"))
+        write_text_atomic(out_dir / f"{name}.md", markdown(df))
+    write_text_atomic(out_dir / "metrics.json", json.dumps(pooled_metrics(rows), indent=2) + "\n")
+    tables["_confusion_matrices"] = conf   # for the plots and the report; not written as its own file
+    return tables

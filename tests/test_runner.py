@@ -1,0 +1,192 @@
+"""The runner: plan, seeds, journal, resume after SIGKILL, parallel execution, identical tables."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from harness.evaluation import runner
+from harness.evaluation.cache import cached, path_for_key
+from harness.evaluation.journal import ResultsError
+from harness.evaluation.journal import read as read_journal
+from harness.evaluation.scenario import PROCEDURAL_CLASSES, parse_scenario
+
+TINY = {"name": "tiny", "seed": 5, "repeats": 2, "database": {"classes": ["walk", "run", "kick"]},
+        "test": {"demos_per_class": 1}, "methods": ["full", "no_database"],
+        "sweep": {"markers.count": [10, 30], "occluders.amount": [0.0, 0.3]}}
+
+
+def fake_run(run: runner.RunSpec) -> list[dict]:
+    """A deterministic stand-in for the pipeline: numbers drawn from the run's seed, shaped like real rows."""
+    rng = run.rng()
+    classes = list(run.config.classes)
+    rows = []
+    for method in run.config.methods:
+        skill = 0.9 - run.config.occluders.amount - (0.2 if method == "no_database" else 0.0)
+        right = rng.random() < skill
+        pred = run.test_class if right else classes[(classes.index(run.test_class) + 1) % len(classes)]
+        rows.append({"method": method, "class_true": run.test_class, "class_pred": pred, "correct": int(right),
+                     "frame_accuracy": float(rng.uniform(0.3, 1.0)),
+                     "time_to_correct_s": float(rng.uniform(0, 2)) if right else float("nan"),
+                     "angle_rms_deg": float(rng.gamma(4, 2)), "mpjpe_rel_mm": float(rng.gamma(9, 8)),
+                     "mpjpe_abs_mm": float(rng.gamma(9, 20)), "base_pos_err_m": float(rng.gamma(3, 0.05)),
+                     "base_depth_err_m": float(rng.gamma(2, 0.05)), "base_rot_err_deg": float(rng.gamma(3, 3)),
+                     "reproj_px": float(rng.gamma(3, 1)), "ms_per_frame": 12.5,
+                     "self_occlusion": 0.2, "obstacle_occlusion": run.config.occluders.amount * 0.8,
+                     "n_frames": 60, "mean_flows": float(run.config.markers.count) * 0.6})
+    return rows
+
+
+def slow_fake_run(run):
+    time.sleep(0.05)
+    return fake_run(run)
+
+
+def failing_run(run):
+    if run.test_class == "run" and run.repeat == 1:
+        from harness.errors import HarnessError
+        raise HarnessError("kick exploded")
+    return fake_run(run)
+
+
+@pytest.fixture
+def tiny():
+    return parse_scenario(TINY, "tiny.yaml")
+
+
+def test_plan_is_the_cartesian_product_with_distinct_deterministic_seeds(tiny, tmp_path):
+    runs = runner.plan(tiny, tmp_path)
+    assert len(runs) == 4 * 2 * 3                      # conditions x repeats x test motions
+    assert [r.key for r in runs] == sorted(r.key for r in runs)
+    assert len({r.key for r in runs}) == len(runs)
+    conds = {(r.condition, r.config.markers.count, r.config.occluders.amount) for r in runs}
+    assert conds == {(0, 10, 0.0), (1, 10, 0.3), (2, 30, 0.0), (3, 30, 0.3)}
+    assert {r.test_demo for r in runs} == {8}          # held out: after the 8 training demos
+    # Seeds: distinct across repeats and test motions, shared across conditions (common random numbers).
+    by_cell = {}
+    for r in runs:
+        by_cell.setdefault((r.repeat, r.test_class, r.test_demo), set()).add(r.seed)
+    assert all(len(s) == 1 for s in by_cell.values()) and len({next(iter(s)) for s in by_cell.values()}) == 6
+    again = runner.plan(parse_scenario(TINY), tmp_path)
+    assert [r.seed for r in again] == [r.seed for r in runs]
+    expected = np.random.SeedSequence([5, 1, runner._word("run"), 8]).generate_state(2, np.uint32)
+    assert runner.derive_seed(5, 1, "run", 8) == (int(expected[1]) << 32 | int(expected[0])) & (2**63 - 1)
+    assert runner.derive_seed(6, 1, "run", 8) != runner.derive_seed(5, 1, "run", 8)
+
+
+def test_rows_carry_identity_and_are_sorted(tiny, tmp_path):
+    table = runner.run_scenario(tiny, tmp_path / "tiny", fake_run, progress=False)
+    assert len(table) == 24 * 2
+    for col in ("run_key", "scenario", "condition", "markers.count", "occluders.amount", "repeat",
+                "test_class", "test_demo", "seed", "method", "correct"):
+        assert col in table
+    assert list(table["run_key"]) == sorted(table["run_key"])
+    assert (tmp_path / "tiny" / "runs.csv").is_file()
+    rows = pd.read_csv(tmp_path / "tiny" / "runs.csv")
+    assert np.allclose(rows["mpjpe_rel_mm"], table["mpjpe_rel_mm"])
+
+
+def test_parallel_equals_serial(tiny, tmp_path):
+    a = runner.run_scenario(tiny, tmp_path / "a", fake_run, jobs=1, limit=6, progress=False)
+    b = runner.run_scenario(tiny, tmp_path / "b", fake_run, jobs=2, limit=6, progress=False)
+    pd.testing.assert_frame_equal(a, b)
+
+
+def test_limit_then_resume_completes_without_repeats(tiny, tmp_path):
+    calls = []
+
+    def counting(run):
+        calls.append(run.key)
+        return fake_run(run)
+
+    runner.run_scenario(tiny, tmp_path / "t", counting, limit=5, progress=False)
+    full = runner.run_scenario(tiny, tmp_path / "t", counting, progress=False)
+    assert len(calls) == 24 and len(set(calls)) == 24
+    assert len(read_journal(tmp_path / "t" / "runs.jsonl")) == 24
+    assert full["run_key"].nunique() == 24
+
+
+def test_a_changed_scenario_is_refused_then_started_fresh(tiny, tmp_path):
+    runner.run_scenario(tiny, tmp_path / "t", fake_run, limit=3, progress=False)
+    changed = parse_scenario({**TINY, "seed": 6})
+    with pytest.raises(ResultsError, match="different version of this scenario.*--fresh"):
+        runner.run_scenario(changed, tmp_path / "t", fake_run, progress=False)
+    table = runner.run_scenario(changed, tmp_path / "t", fake_run, limit=2, fresh=True, progress=False)
+    assert table["run_key"].nunique() == 2
+    assert list((tmp_path / "t").glob("runs.stale-*.jsonl"))
+
+
+def test_a_failing_run_names_itself_and_keeps_finished_runs(tiny, tmp_path):
+    with pytest.raises(runner.RunError, match="run c000/r001/run/d008 failed: kick exploded"):
+        runner.run_scenario(tiny, tmp_path / "t", failing_run, progress=False)
+    done = read_journal(tmp_path / "t" / "runs.jsonl")
+    assert [r["key"] for r in done] == ["c000/r000/kick/d008", "c000/r000/run/d008", "c000/r000/walk/d008",
+                                        "c000/r001/kick/d008"]
+
+
+def test_torn_last_line_is_dropped(tiny, tmp_path):
+    runner.run_scenario(tiny, tmp_path / "t", fake_run, limit=3, progress=False)
+    path = tmp_path / "t" / "runs.jsonl"
+    with open(path, "ab") as fh:
+        fh.write(b'{"key": "c000/r000/walk/d008", "hash": "x", "ro')
+    assert len(read_journal(path)) == 3
+    assert path.read_bytes().endswith(b"\n")
+
+
+_CHILD = """
+import sys
+sys.path.insert(0, {tests!r})
+from harness.evaluation.runner import run_scenario
+from harness.evaluation.scenario import parse_scenario
+import test_runner
+run_scenario(parse_scenario(test_runner.TINY), {out!r}, test_runner.slow_fake_run, progress=False)
+"""
+
+
+def test_sigkill_then_resume_equals_an_uninterrupted_run(tiny, tmp_path):
+    out = tmp_path / "killed"
+    code = _CHILD.format(tests=str(Path(__file__).parent), out=str(out))
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    rng = np.random.default_rng(11)
+    proc = subprocess.Popen([sys.executable, "-c", code], env=env, start_new_session=True)
+    journal = out / "runs.jsonl"
+    target = int(rng.integers(3, 15))
+    deadline = time.time() + 60
+    while time.time() < deadline and proc.poll() is None:
+        if journal.exists() and journal.read_bytes().count(b"\n") >= target:
+            break
+        time.sleep(0.01)
+    time.sleep(float(rng.uniform(0.0, 0.05)))            # land somewhere inside a run (or inside a write)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    partial = read_journal(journal, repair=False)
+    assert 0 < len(partial) < 24, "the kill should interrupt the sweep"
+    resumed = runner.run_scenario(tiny, out, fake_run, progress=False)
+    reference = runner.run_scenario(tiny, tmp_path / "clean", fake_run, progress=False)
+    pd.testing.assert_frame_equal(resumed, reference)
+    keys = [r["key"] for r in read_journal(journal)]
+    assert len(keys) == len(set(keys)) == 24
+
+
+def test_cache_builds_once_and_loads_after(tmp_path):
+    builds = []
+
+    def build():
+        builds.append(1)
+        return np.arange(5.0)
+
+    path = path_for_key(tmp_path, {"source": "procedural", "states": 20, "classes": list(PROCEDURAL_CLASSES)})
+    assert path == path_for_key(tmp_path, {"states": 20, "classes": list(PROCEDURAL_CLASSES), "source": "procedural"})
+    assert path != path_for_key(tmp_path, {"source": "procedural", "states": 21, "classes": list(PROCEDURAL_CLASSES)})
+    save = lambda a, fh: np.save(fh, a)   # noqa: E731
+    first = cached(path, build, save, np.load)
+    second = cached(path, build, save, np.load)
+    assert builds == [1] and np.array_equal(first, second)
+    assert json.loads(path.with_suffix(".json").read_text())["states"] == 20

@@ -1,0 +1,113 @@
+"""Scenario files: validation errors that name the key, defaults, the sweep grid, and the CLI's exit 2."""
+
+from pathlib import Path
+
+import pytest
+
+from harness.cli import main
+from harness.evaluation.scenario import (PROCEDURAL_CLASSES, ScenarioError, conditions, load_scenario,
+                                         parse_scenario, resolve_capture, scenario_hash)
+
+from conftest import require_mocap
+
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
+
+
+def _error(raw) -> str:
+    with pytest.raises(ScenarioError) as info:
+        parse_scenario(raw, "s.yaml")
+    return str(info.value)
+
+
+@pytest.mark.parametrize("raw, expected", [
+    ({"name": "x", "camera": {"distnce": 3}}, "s.yaml: camera.distnce: unknown key"),
+    ({"name": "x", "bogus": 1}, "s.yaml: bogus: unknown key"),
+    ({"name": "x", "sweep": {"markers.count": []}}, "s.yaml: sweep['markers.count']: empty list"),
+    ({"name": "x", "database": {"classes": ["walk", "run", "jump", "wlak"]}},
+     "s.yaml: database.classes[3]: unknown class 'wlak' (valid: walk, run,"),
+    ({"name": "x", "markers": {"count": "many"}}, "s.yaml: markers.count: Input should be a valid integer"),
+    ({"name": "x", "camera": {"azimuth": "left"}}, "s.yaml: camera.azimuth: Input should be a valid number"),
+    ({"name": "x", "sweep": {"markers.count": [10, -3]}}, "s.yaml: sweep['markers.count'][1]: Input should be greater"),
+    ({"name": "x", "sweep": {"markers.cont": [10]}}, "s.yaml: sweep['markers.cont']: unknown key (valid: "),
+    ({"name": "x", "sweep": {"markers.count": 10}}, "s.yaml: sweep['markers.count']: must be a list"),
+    ({"name": "x", "engine": {"init_distance": [5, 2]}}, "s.yaml: engine.init_distance: must be [near, far]"),
+    ({"name": "x", "test": {"split": "all"}}, "s.yaml: test.split: 'all' does not fit database.source"),
+    ({"name": "x", "methods": ["full", "best"]}, "s.yaml: methods[1]: Input should be 'full'"),
+    ({"seed": 3}, "s.yaml: name: required key is missing"),
+])
+def test_errors_name_the_key_and_what_was_expected(raw, expected):
+    assert _error(raw).startswith(expected)
+
+
+def test_a_five_line_scenario_gets_the_documented_defaults():
+    s = parse_scenario({"name": "small", "sweep": {"engine.particles": [50, 100]}})
+    assert s.classes == PROCEDURAL_CLASSES and s.database.train_demos == 8 and s.database.states == 20
+    assert s.database.fps == 30.0 and s.test.demos_per_class == 2 and s.test.split == "heldout"
+    assert (s.engine.particles, s.engine.model_points, s.engine.model_seed, s.engine.init_distance) == \
+        (200, 150, 7, (2.0, 8.0))
+    assert s.methods == ("full", "gt_base", "no_database", "joint_space")
+
+
+def test_conditions_are_the_cartesian_product_last_key_fastest():
+    s = parse_scenario({"name": "g", "sweep": {"markers.count": [10, 20], "camera.azimuth": [0, "random", 90]}})
+    conds = conditions(s)
+    assert [(c.config.markers.count, c.config.camera.azimuth) for c in conds] == \
+        [(10, 0), (10, "random"), (10, 90), (20, 0), (20, "random"), (20, 90)]
+    assert conds[1].label == "markers.count=10,camera.azimuth=random"
+    assert all(c.config.sweep == {} for c in conds)
+    assert [c.label for c in conditions(parse_scenario({"name": "n"}))] == ["base"]
+
+
+def test_hash_changes_with_content_only():
+    a = parse_scenario({"name": "h", "seed": 1})
+    assert scenario_hash(a) == scenario_hash(parse_scenario({"seed": 1, "name": "h", "repeats": 1}))
+    assert scenario_hash(a) != scenario_hash(parse_scenario({"name": "h", "seed": 2}))
+
+
+def test_yaml_errors_name_the_file_and_line(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\ncamera: {distance: 3\nseed: 2\n")
+    with pytest.raises(ScenarioError, match=r"bad.yaml: line \d+ not valid YAML"):
+        load_scenario(bad)
+    with pytest.raises(ScenarioError, match="no such scenario file"):
+        load_scenario(tmp_path / "missing.yaml")
+
+
+def test_evaluate_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys):
+    bad = tmp_path / "typo.yaml"
+    bad.write_text("name: typo\ncamera:\n  distnce: 4\n")
+    results = tmp_path / "results"
+    assert main(["evaluate", str(bad), "--results", str(results)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {bad}: camera.distnce: unknown key"]
+    assert not results.exists()
+
+
+@pytest.mark.parametrize("path", sorted(SCENARIOS.glob("*.yaml")), ids=lambda p: p.name)
+def test_shipped_scenarios_validate(path):
+    s = load_scenario(path)
+    assert s.name == path.stem
+    assert len(conditions(s)) >= 1
+
+
+def test_capture_classes_are_checked_against_the_manifest():
+    mocap = require_mocap()
+    s = parse_scenario({"name": "m", "database": {"source": "capture", "classes": ["walk", "wlak"]},
+                        "test": {"split": "all"}})
+    with pytest.raises(ScenarioError, match=r"database.classes\[1\]: unknown class 'wlak' \(valid: "):
+        resolve_capture(s, mocap)
+    ok = resolve_capture(parse_scenario({"name": "m", "database": {"source": "capture"},
+                                         "test": {"split": "all"}}), mocap)
+    assert "walk" in ok.database.classes and Path(ok.database.capture_dir) == mocap.resolve()
+
+
+def test_capture_dir_missing_is_named(monkeypatch):
+    monkeypatch.delenv("HARNESS_MOCAP_DIR", raising=False)
+    s = parse_scenario({"name": "m", "database": {"source": "capture"}, "test": {"split": "all"}})
+    with pytest.raises(ScenarioError, match=r"database.capture_dir: not set \(give --mocap-dir DIR"):
+        resolve_capture(s)
+
+
+def test_procedural_classes_match_the_performer():
+    performer = pytest.importorskip("harness.motion.performer", reason="the performer is not on this branch")
+    assert tuple(performer.CLASSES) == PROCEDURAL_CLASSES

@@ -1,0 +1,116 @@
+"""Tables and statistics: bootstrap against a closed form, paired tests by hand, identical inputs -> identical files."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats as st
+
+from harness.evaluation import stats, tables
+from harness.evaluation.report import make_report
+from harness.evaluation.runner import run_scenario
+from harness.evaluation.scenario import parse_scenario
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_runner import TINY, fake_run  # noqa: E402
+
+
+def test_bootstrap_interval_matches_the_normal_interval_of_a_known_sample():
+    x = np.random.default_rng(3).normal(10.0, 2.0, size=400)
+    lo, hi = stats.bootstrap_ci(x, np.random.default_rng(0), n_boot=4000)
+    half = st.norm.ppf(0.975) * x.std(ddof=1) / np.sqrt(len(x))
+    assert lo == pytest.approx(x.mean() - half, abs=0.1 * half)
+    assert hi == pytest.approx(x.mean() + half, abs=0.1 * half)
+    assert stats.bootstrap_ci(np.array([2.5, np.nan]), np.random.default_rng(0)) == (2.5, 2.5)
+    assert all(np.isnan(stats.bootstrap_ci(np.array([np.nan]), np.random.default_rng(0))))
+
+
+def test_mcnemar_exact_by_hand():
+    a = np.array([1, 1, 1, 1, 1, 0, 1, 0])
+    b = np.array([0, 0, 0, 0, 0, 0, 1, 0])           # 5 discordant pairs, all in a's favour
+    out = stats.mcnemar_exact(a, b)
+    assert (out["a_only"], out["b_only"], out["n_pairs"]) == (5, 0, 8)
+    assert out["p_value"] == pytest.approx(2 * 0.5**5)
+    assert stats.mcnemar_exact(a, a)["p_value"] == 1.0
+
+
+def test_wilcoxon_pairs_drop_nan_and_detect_a_shift():
+    rng = np.random.default_rng(4)
+    b = rng.normal(50, 5, size=30)
+    a = b + 3.0 + rng.normal(0, 0.5, size=30)
+    a[0] = np.nan
+    out = stats.wilcoxon_paired(a, b)
+    assert out["n_pairs"] == 29 and out["median_diff"] == pytest.approx(np.nanmedian(a - b))
+    assert out["p_value"] < 1e-6                     # every difference positive: 2 / 2**29
+    assert np.isnan(stats.wilcoxon_paired(b, b)["p_value"])
+
+
+@pytest.fixture(scope="module")
+def rows(tmp_path_factory):
+    return run_scenario(parse_scenario(TINY), tmp_path_factory.mktemp("r") / "tiny", fake_run, progress=False)
+
+
+def test_summary_cells_against_numpy(rows):
+    summ = tables.summary(rows, ["markers.count", "occluders.amount"], n_boot=500)
+    cond = rows["condition"].iloc[0]
+    g = rows[(rows["condition"] == cond) & (rows["method"] == "full")]
+    cell = summ[(summ["condition"] == cond) & (summ["method"] == "full") & (summ["metric"] == "mpjpe_rel_mm")]
+    assert cell["n"].item() == len(g) == 6
+    assert cell["mean"].item() == pytest.approx(g["mpjpe_rel_mm"].mean())
+    assert cell["std"].item() == pytest.approx(g["mpjpe_rel_mm"].std(ddof=1))
+    assert cell["ci_lo"].item() < cell["mean"].item() < cell["ci_hi"].item()
+    ttc = summ[(summ["metric"] == "time_to_correct_s")]
+    assert (ttc["n"] <= 6).all()                     # NaN (never correct) is left out of the mean
+    assert list(dict.fromkeys(summ["method"])) == ["full", "no_database"]
+
+
+def test_confusion_and_per_class_count_by_hand(rows):
+    conf = tables.confusion(rows, ["walk", "run", "kick"])
+    g = rows[(rows["condition"] == rows["condition"].iloc[0]) & (rows["method"] == "no_database")]
+    mat = conf[(rows["condition"].iloc[0], "no_database")]
+    for t in ("walk", "run", "kick"):
+        for p in ("walk", "run", "kick"):
+            assert mat.loc[t, p] == int(((g["class_true"] == t) & (g["class_pred"] == p)).sum())
+    pc = tables.per_class(rows)
+    r = pc[(pc["condition"] == g["condition"].iloc[0]) & (pc["method"] == "no_database") & (pc["class_true"] == "walk")]
+    assert r["accuracy"].item() == pytest.approx(g.loc[g["class_true"] == "walk", "correct"].mean())
+
+
+def test_paired_tests_pair_the_same_runs(rows):
+    pt = tables.paired_tests(rows)
+    cond = rows["condition"].iloc[0]
+    mc = pt[(pt["condition"] == cond) & (pt["test"] == "McNemar (exact)")].iloc[0]
+    f = rows[(rows["condition"] == cond) & (rows["method"] == "full")].set_index("run_key")["correct"]
+    n = rows[(rows["condition"] == cond) & (rows["method"] == "no_database")].set_index("run_key")["correct"]
+    a_only, b_only = int(((f == 1) & (n == 0)).sum()), int(((f == 0) & (n == 1)).sum())
+    assert mc["effect"] == f"full only right {a_only}, no_database only right {b_only}"
+    assert mc["n_pairs"] == 6
+
+
+def test_same_scenario_twice_gives_identical_tables_and_report(tmp_path):
+    scenario = parse_scenario(TINY)
+    texts = []
+    for d in ("a", "b"):
+        out = tmp_path / d
+        rows = run_scenario(scenario, out, fake_run, progress=False)
+        rows["ms_per_frame"] = 10.0 if d == "a" else 99.0     # timing differs between machines and runs
+        make_report(scenario, out, rows, plots=False)
+        report = (out / "report.md").read_text().split("## Timing")[0]
+        texts.append([report] + [(out / f"{n}.csv").read_text() for n in
+                                 ("headline", "per_class", "confusion", "paired_tests")])
+    assert texts[0] == texts[1]
+    assert "## Headline" in texts[0][0] and "McNemar" in texts[0][0]
+    summ = [pd.read_csv(tmp_path / d / "summary.csv") for d in ("a", "b")]
+    keep = [s[s["metric"] != "ms_per_frame"].reset_index(drop=True) for s in summ]
+    pd.testing.assert_frame_equal(keep[0], keep[1])
+
+
+def test_pooled_metrics_are_means_over_runs(rows):
+    pooled = tables.pooled_metrics(rows)
+    full = rows[rows["method"] == "full"]
+    assert pooled["full/correct"] == pytest.approx(full["correct"].mean())
+    assert pooled["no_database/mpjpe_rel_mm"] == pytest.approx(rows.loc[rows["method"] == "no_database",
+                                                                        "mpjpe_rel_mm"].mean())
+    assert "full/n_frames" not in pooled
