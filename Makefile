@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 
-.PHONY: setup test evaluate bench clean
+.PHONY: setup test evaluate regress rebaseline bench clean
 
 setup: $(STAMP)
 
@@ -19,11 +19,21 @@ $(STAMP): pyproject.toml
 test: $(STAMP)
 	$(PY) -m pytest -q
 
+# The main job: the default scenario, tables, plots and report under results/default/.
 evaluate: $(STAMP)
-	$(PY) benchmarks/kinematics.py
+	$(PY) -m harness evaluate scenarios/default.yaml --jobs 2
+
+# CI regression: run scenarios/ci.yaml and compare with results/baseline/ under its tolerances.
+regress: $(STAMP)
+	$(PY) -m harness regress --scenario scenarios/ci.yaml --baseline results/baseline
+
+# Deliberately accept the current ci numbers as the new baseline (review the diff before committing it).
+rebaseline: $(STAMP)
+	$(PY) -m harness rebaseline --scenario scenarios/ci.yaml --baseline results/baseline
 
 bench: $(STAMP)
 	$(PY) benchmarks/kinematics.py
+	$(PY) benchmarks/engine_speed.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache

@@ -145,14 +145,18 @@ class MotionDatabase:
 
     # --- files ----------------------------------------------------------------------------------
 
-    def save(self, path: str | Path) -> None:
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The database as plain arrays (the ``.npz`` file's content)."""
         self._check_fitted()
-        save_npz_atomic(path, {
+        return {
             "format": np.array(_FORMAT), "classes": self.classes_.astype(str), "means": self.means_,
             "covars": self.covars_, "transmat": self.transmat_, "startprob": self.startprob_,
             "fps": np.array(self.fps_), "cyclic": np.array(self.cyclic, dtype=str),
             "n_iter": np.array(self.n_iter),
-        })
+        }
+
+    def save(self, path: str | Path) -> None:
+        save_npz_atomic(path, self.to_arrays())
 
     @classmethod
     def load(cls, path: str | Path) -> "MotionDatabase":

@@ -70,3 +70,32 @@ def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows:
         pos = pos + step[50:53]
         rot = rot @ geometry.to_matrix(geometry.exp(step[53:]))
     return angles, pos, rot
+
+
+def fit_without_database(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows: list[np.ndarray],
+                         base_pos: np.ndarray, base_quat: np.ndarray, noise_px: float, spread: float,
+                         angle_step_std: float = 0.3, iterations: int = 2) -> np.ndarray:
+    """The no-database ablation: per frame, fit the 50 angles to the flow positions alone (soft assignment to
+    the model points at the current angles, Gauss-Newton), from the previous frame's angles with a weak
+    smoothness prior of ``angle_step_std`` rad, at a given base pose ``(T, 3)``, ``(T, 4)``. Returns
+    ``(T, 50)`` angles. No HMM, no recognition: what the database's prior adds is the difference."""
+    from harness.engine.likelihood import responsibilities
+    from harness.engine.transform import state_point_distributions, to_image
+
+    angles = np.zeros(50)
+    out = np.empty((len(flows), 50))
+    zeros50, zeros3 = np.zeros(50), np.zeros(3)
+    for t, f in enumerate(flows):
+        rot = geometry.to_matrix(base_quat[t])
+        for _ in range(iterations if len(f) else 0):
+            dist = state_point_distributions(body, angles, zeros50, zeros50, zeros50, zeros3, zeros3, zeros3,
+                                             zeros3, points, spread)
+            img = to_image(intr, rot[None], base_pos[t][None], dist)
+            # Positions only: a velocity covariance this wide makes the velocity factor constant.
+            img = type(img)(img.pix, img.pix_cov, img.flow, np.broadcast_to(1e12 * np.eye(2), img.flow_cov.shape),
+                            img.facing)
+            resp = responsibilities(f, img, noise_px, 1.0, intr.width, intr.height)
+            angles, _, _ = refine_pose(body, points, intr, f, resp, angles, np.full(50, angle_step_std),
+                                       base_pos[t], rot, np.full(3, 1e-4), 1e-4, noise_px, spread, iterations=1)
+        out[t] = angles
+    return out
