@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from harness.body.kinematics import forward_points, forward_points_and_jacobians
@@ -29,7 +30,7 @@ from harness.body.model import BodyModel
 from harness.body.surface import SurfacePoints, geom_area
 from harness.engine.database import MotionDatabase
 from harness.engine.features import ANGLE_RATES, ANGLES, BASE_ANGULAR, BASE_LINEAR
-from harness.pinhole import Intrinsics, projection_jacobian
+from harness.pinhole import Intrinsics
 
 _JDOT_STEP = 1e-4          # radians moved along theta_dot for the central difference of J
 MIN_DEPTH = 0.05           # metres: points nearer the camera than this are treated as not visible
@@ -150,26 +151,73 @@ def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDi
              camera_motion: np.ndarray | None = None) -> ImageDistributions:
     """Project body-frame point distributions for ``H`` base poses ``rot (H, 3, 3)``, ``trans (H, 3)``.
 
-    ``dist`` holds either one state (broadcast over the poses) or ``H`` states (one per pose).
+    One pose and ``S`` states, ``H`` poses and one state, or ``H`` poses and ``H`` states (paired): the
+    output has one row per pair.
     ``camera_motion``: ``(6,)`` camera linear and angular velocity in its own frame, or None.
     """
-    rot = np.asarray(rot, dtype=float).reshape(-1, 3, 3)
-    trans = np.asarray(trans, dtype=float).reshape(-1, 3)
-    R = rot[:, None]                                             # (H, 1, 3, 3), broadcast over points
-    X = (R @ dist.pos[..., None])[..., 0] + trans[:, None]
-    Xdot = (R @ dist.vel[..., None])[..., 0]
-    if camera_motion is not None:
-        vc, wc = camera_motion[:3], camera_motion[3:]
-        Xdot = Xdot - vc - np.cross(wc, X)
-    z = X[..., 2]
-    safe = np.where(z > MIN_DEPTH, z, 1.0)
-    Xs = np.concatenate([X[..., :2], safe[..., None]], axis=-1)
-    P = projection_jacobian(intr, Xs)                            # (H, P, 2, 3)
-    PR = P @ R                                                   # (H, P, 2, 3)
-    pix = np.stack([intr.fx * Xs[..., 0] / safe + intr.cx, intr.fy * Xs[..., 1] / safe + intr.cy], axis=-1)
-    pix_cov = PR @ dist.pos_cov @ np.swapaxes(PR, -1, -2)
-    flow = (P @ Xdot[..., None])[..., 0]
-    flow_cov = PR @ dist.vel_cov @ np.swapaxes(PR, -1, -2)
-    normal = (R @ dist.normal[..., None])[..., 0]
-    facing = (np.einsum("hpi,hpi->hp", normal, X) < 0) & (z > MIN_DEPTH)
-    return ImageDistributions(pix, pix_cov, flow, flow_cov, facing)
+    rot = np.ascontiguousarray(rot, dtype=float).reshape(-1, 3, 3)
+    trans = np.ascontiguousarray(trans, dtype=float).reshape(-1, 3)
+    ego = np.zeros(6) if camera_motion is None else np.asarray(camera_motion, dtype=float)
+    S, P = dist.pos.shape[:2]
+    H = max(len(rot), S)
+    if len(rot) not in (1, H) or S not in (1, H):
+        raise ValueError(f"{S} states for {len(rot)} poses: give one of either, or as many of each")
+    out = (np.empty((H, P, 2)), np.empty((H, P, 2, 2)), np.empty((H, P, 2)), np.empty((H, P, 2, 2)),
+           np.empty((H, P), dtype=np.bool_))
+    _project_kernel(rot, trans, *(np.ascontiguousarray(a) for a in (dist.pos, dist.pos_cov, dist.vel,
+                    dist.vel_cov, dist.normal)), intr.fx, intr.fy, intr.cx, intr.cy, ego, *out)
+    return ImageDistributions(*out)
+
+
+@numba.njit(cache=True)
+def _project_kernel(rot, trans, pos, pos_cov, vel, vel_cov, normal, fx, fy, cx, cy, ego,
+                    pix, pix_cov, flow, flow_cov, facing):
+    """The loop of ``to_image``: X = R x + t, Xdot = R xdot - v_c - w_c x X, u = pi(X), and the covariances
+    mapped by PR = d(u)/dX R (one fused pass; the numpy version built (H, P, 2, 3) temporaries)."""
+    H, P = pix.shape[0], pos.shape[1]
+    one_state, one_pose = pos.shape[0] == 1, rot.shape[0] == 1
+    PR = np.empty((2, 3))
+    X = np.empty(3)
+    Xd = np.empty(3)
+    for h in range(H):
+        s = 0 if one_state else h
+        g = 0 if one_pose else h
+        R = rot[g]
+        for p in range(P):
+            for i in range(3):
+                X[i] = trans[g, i] + R[i, 0] * pos[s, p, 0] + R[i, 1] * pos[s, p, 1] + R[i, 2] * pos[s, p, 2]
+                Xd[i] = R[i, 0] * vel[s, p, 0] + R[i, 1] * vel[s, p, 1] + R[i, 2] * vel[s, p, 2] - ego[i]
+            Xd[0] -= ego[4] * X[2] - ego[5] * X[1]
+            Xd[1] -= ego[5] * X[0] - ego[3] * X[2]
+            Xd[2] -= ego[3] * X[1] - ego[4] * X[0]
+            n_dot_x = 0.0
+            for i in range(3):
+                n_dot_x += (R[i, 0] * normal[s, p, 0] + R[i, 1] * normal[s, p, 1] + R[i, 2] * normal[s, p, 2]) * X[i]
+            z = X[2]
+            facing[h, p] = (n_dot_x < 0.0) and (z > MIN_DEPTH)
+            if z <= MIN_DEPTH:
+                z = 1.0
+            iz = 1.0 / z
+            pix[h, p, 0] = fx * X[0] * iz + cx
+            pix[h, p, 1] = fy * X[1] * iz + cy
+            # d(u, v)/dX = [[fx/z, 0, -fx X/z^2], [0, fy/z, -fy Y/z^2]], then times R.
+            a0, a2 = fx * iz, -fx * X[0] * iz * iz
+            b1, b2 = fy * iz, -fy * X[1] * iz * iz
+            for j in range(3):
+                PR[0, j] = a0 * R[0, j] + a2 * R[2, j]
+                PR[1, j] = b1 * R[1, j] + b2 * R[2, j]
+            flow[h, p, 0] = a0 * Xd[0] + a2 * Xd[2]
+            flow[h, p, 1] = b1 * Xd[1] + b2 * Xd[2]
+            for r in range(2):
+                for c in range(r, 2):
+                    sp = 0.0
+                    sv = 0.0
+                    for i in range(3):
+                        for j in range(3):
+                            w = PR[r, i] * PR[c, j]
+                            sp += w * pos_cov[s, p, i, j]
+                            sv += w * vel_cov[s, p, i, j]
+                    pix_cov[h, p, r, c] = sp
+                    pix_cov[h, p, c, r] = sp
+                    flow_cov[h, p, r, c] = sv
+                    flow_cov[h, p, c, r] = sv
