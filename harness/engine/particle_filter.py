@@ -157,13 +157,40 @@ class ParticleFilter:
         self.log_weights[worst] = np.median(self.log_weights)
         self.log_weights -= logsumexp(self.log_weights)
 
+    def inject_jumps(self, fraction: float, angles: tuple[float, ...] = (np.pi, 0.5 * np.pi, -0.5 * np.pi)) -> None:
+        """Kinematic-jump proposals: replace the lowest-weight ``fraction`` of particles by copies of the
+        estimate turned about the body's own vertical axis (by default half and quarter turns), with the
+        median weight.
+
+        One camera cannot tell a body seen from the front from one seen from the back until the motion
+        reveals it (a squat from the front and from behind give almost the same flows for many frames);
+        by then resampling has emptied the other mode. Keeping a few particles in the mirrored poses lets
+        the filter switch when the evidence arrives."""
+        k = int(round(fraction * self.n))
+        if k <= 0:
+            return
+        pos, quat = self.estimate()
+        worst = np.argsort(self.log_weights)[:k]
+        turns = np.asarray(angles)[np.arange(k) % len(angles)]
+        self.positions[worst] = pos
+        self.quats[worst] = geometry.multiply(np.broadcast_to(quat, (k, 4)), geometry.yaw(turns))
+        self.log_weights[worst] = np.median(self.log_weights)
+        self.log_weights -= logsumexp(self.log_weights)
+
     # --- read-out -------------------------------------------------------------------------------
 
     @property
     def weights(self) -> np.ndarray:
         return np.exp(self.log_weights)
 
-    def estimate(self) -> tuple[np.ndarray, np.ndarray]:
-        """Weighted mean position ``(3,)`` and Markley average orientation ``(4,)``."""
+    def estimate(self, mode_radius: float = np.deg2rad(45.0)) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean position ``(3,)`` and Markley average orientation ``(4,)`` of the heaviest mode: the
+        particles within ``mode_radius`` of the candidate centre (one of the ten heaviest particles) that
+        gathers the most weight. The cloud may hold mirrored modes, and the mean of two modes is neither."""
         w = self.weights
+        centres = np.argsort(w)[-10:]
+        near = geometry.angle_between(self.quats[None, :, :], self.quats[centres][:, None, :]) <= mode_radius
+        near = near[np.argmax(near @ w)]
+        w = np.where(near, w, 0.0)
+        w = w / w.sum()
         return w @ self.positions, geometry.weighted_mean(self.quats, w)

@@ -56,6 +56,7 @@ class TrackerConfig:
     rotation_noise: float = 0.3              # rad / sqrt(s)
     refine_iterations: int = 3
     inject_fraction: float = 0.1
+    jump_fraction: float = 0.06              # particles re-seeded each frame at mirrored headings
 
     def __post_init__(self):
         positive = {"particles": self.particles, "model_points": self.model_points,
@@ -204,6 +205,7 @@ class Tracker:
                                                cfg.refine_iterations)
             if pose is None:
                 self.filter.inject(pos_r, geometry.from_matrix(rot_r), cfg.inject_fraction, 0.5 * spread, 0.05)
+                self.filter.inject_jumps(cfg.jump_fraction)
             else:
                 pos_r, rot_r = pos, rot
         t4 = time.perf_counter()
