@@ -43,14 +43,16 @@ CLIP_MARGIN = 0.08              # fraction of each joint range used by the soft 
 TEMPO_SPREAD = 0.10             # per take, uniform +-, multiplies durations
 AMP_SPREAD = 0.10               # per take, uniform +-, multiplies amplitudes
 SUBJECT_SPREAD = 0.05           # per subject, log-normal sigma of the tempo and amplitude biases
+NOISE_GAIN = 1.6                # multiplies the per-joint smooth-noise levels of _NOISE_DEG
+POSTURE_GAIN = 1.6              # multiplies the subject posture offsets
 _STYLE_SEED = 0x5EB1EC7         # fixed: a subject id always gives the same style
 _FOOT_GEOMS = ("lfoot", "ltoes", "rfoot", "rtoes")
 
 # Smooth-noise standard deviation per joint (degrees): more in the arms and hands, which people carry
 # freely, less in the legs, whose errors would show as sliding or uneven feet.
-_NOISE_DEG = {"lowerback": 1.5, "upperback": 1.0, "thorax": 1.0, "lowerneck": 2.0, "upperneck": 2.0,
-              "head": 2.0, "clavicle": 1.5, "humerus": 4.0, "radius": 5.0, "wrist": 6.0, "hand": 6.0,
-              "femur": 1.5, "tibia": 2.0, "foot": 1.5, "toes": 3.0}
+_NOISE_DEG = {"lowerback": 2.0, "upperback": 1.5, "thorax": 1.5, "lowerneck": 3.0, "upperneck": 3.0,
+              "head": 3.0, "clavicle": 2.0, "humerus": 6.0, "radius": 8.0, "wrist": 8.0, "hand": 8.0,
+              "femur": 2.0, "tibia": 2.5, "foot": 2.0, "toes": 4.0}
 _BASE_NOISE_DEG = np.array([2.0, 1.0, 1.0])        # yaw, pitch, roll
 
 
@@ -63,7 +65,7 @@ def _noise_scale() -> np.ndarray:
     return out
 
 
-_NOISE_SCALE_DEG = _noise_scale()
+_NOISE_SCALE_DEG = NOISE_GAIN * _noise_scale()
 
 
 @dataclass(frozen=True)
@@ -100,7 +102,8 @@ def subject_style(subject: int) -> SubjectStyle:
     k.both("radius_y", -abs(g.normal(0.0, 6.0)))         # elbows a little bent
     k.both("femur_x", g.normal(1.0, 2.0))                 # stance width
     k.both("femur_z", g.normal(4.0, 4.0))                 # toe-out
-    return SubjectStyle(int(subject), tempo, amplitude, k.angles[0].copy(), float(g.normal(0.0, 2.0)))
+    return SubjectStyle(int(subject), tempo, amplitude, POSTURE_GAIN * k.angles[0].copy(),
+                        float(g.normal(0.0, 2.0)))
 
 
 @lru_cache(maxsize=1)

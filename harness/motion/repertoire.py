@@ -58,8 +58,11 @@ def walk(k: Take) -> Plan:
     cycles = k.rng.uniform(1.9, 2.1)
     t = k.begin(cycles * period)
     phase = TAU * t / period + k.rng.uniform(0.0, TAU)
-    _gait(k, phase, hip=22.0, knee_swing=58.0, knee_stance=12.0, swing_peak=-0.5, arm=16.0, elbow=12.0,
-          elbow_swing=12.0, lean=2.0, push=22.0)
+    # From a stroll (straight arms) to a power walk (long stride, bent elbows, leaning into it).
+    brisk = k.rng.uniform(0.0, 1.0)
+    _gait(k, phase, hip=18.0 + 8.0 * brisk, knee_swing=50.0 + 15.0 * brisk, knee_stance=12.0, swing_peak=-0.5,
+          arm=12.0 + 14.0 * brisk, elbow=8.0 + 70.0 * brisk * k.rng.uniform(0.3, 1.0), elbow_swing=12.0,
+          lean=k.rng.uniform(0.0, 3.0) + 3.0 * brisk, push=22.0)
     return k.plan()
 
 
@@ -69,8 +72,12 @@ def run(k: Take) -> Plan:
     cycles = k.rng.uniform(1.5, 1.7)                       # shorter: a runner covers ~3 m in ~1.1 s
     t = k.begin(cycles * period)
     phase = TAU * t / period + k.rng.uniform(0.0, TAU)
-    _gait(k, phase, hip=40.0, knee_swing=95.0, knee_stance=30.0, swing_peak=-0.2, arm=28.0, elbow=80.0,
-          elbow_swing=15.0, lean=9.0, push=30.0)
+    # Intensity from a relaxed jog (short stride, low heels, arms half bent) to a stride.
+    effort = k.rng.uniform(0.0, 1.0)
+    _gait(k, phase, hip=28.0 + 14.0 * effort, knee_swing=60.0 + 45.0 * effort, knee_stance=25.0 + 8.0 * effort,
+          swing_peak=-0.2, arm=18.0 + 14.0 * effort, elbow=k.rng.uniform(40.0, 90.0), elbow_swing=15.0,
+          lean=3.0 + 8.0 * effort,
+          push=30.0)
     # Airborne between toe-off of one leg and touch-down of the other: stance of the left leg is the
     # stretch of phase within 0.3 pi of pi (mid-stance), of the right leg within 0.3 pi of 0.
     wrapped = np.mod(phase, np.pi)                         # both legs' stance centres map to 0 / pi
@@ -82,14 +89,15 @@ def run(k: Take) -> Plan:
 def jump(k: Take) -> Plan:
     """Counter-movement jump: crouch with the arms back, extend and swing the arms up, fly, land, recover."""
     a = k.amp
-    t0 = k.span(0.3, 0.6)
+    t0 = k.span(0.2, 0.9)
     t1 = t0 + k.span(0.5, 0.6)                             # bottom of the crouch
     t2 = t1 + k.span(0.18, 0.22)                           # take-off
     t3 = t2 + k.rng.uniform(0.36, 0.44) * np.sqrt(a)       # landing: flight time sets the height
     t4 = t3 + k.span(0.18, 0.22)                           # deepest landing
     t5 = t4 + k.span(0.5, 0.7)
-    t = k.begin(t5 + k.span(0.3, 0.6))
-    crouch = k.keys((t0, 0.0), (t1, 1.0), (t2, 0.0), (t3, 0.0), (t4, 0.7), (t5, 0.0))
+    t = k.begin(t5 + k.span(0.2, 0.9))
+    depth = k.rng.uniform(0.6, 1.0)
+    crouch = k.keys((t0, 0.0), (t1, depth), (t2, 0.0), (t3, 0.0), (t4, 0.7 * depth), (t5, 0.0))
     arms_up = k.keys((t1, 0.0), (t2, 1.0), (t3, 0.8), (t4, 0.2), (t5, 0.0))
     tuck = k.keys((t2, 0.0), (0.5 * (t2 + t3), 1.0), (t3, 0.0))
     push = k.keys((t1, 0.0), (t2, 1.0), (t2 + 0.1, 0.3), (t3, 0.0))
@@ -111,15 +119,17 @@ def jump(k: Take) -> Plan:
 @primitive("squat")
 def squat(k: Take) -> Plan:
     a = k.amp
-    t0 = k.span(0.3, 0.6)
+    t0 = k.span(0.2, 0.9)
     t1 = t0 + k.span(0.8, 1.0)
     t2 = t1 + k.span(0.2, 0.5)
     t3 = t2 + k.span(0.8, 1.0)
-    t = k.begin(t3 + k.span(0.3, 0.6))
-    s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a
-    arms = k.keys((t0, 0.0), (t1 - 0.2 * k.tempo, 1.0), (t2, 1.0), (t3, 0.0)) * a
-    k.pitch += 22.0 * s
-    k.both("femur_y", -88.0 * s)
+    t = k.begin(t3 + k.span(0.2, 0.9))
+    depth = k.rng.uniform(0.55, 1.0)                       # half squat to full squat
+    s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a * depth
+    arms = k.keys((t0, 0.0), (t1 - 0.2 * k.tempo, 1.0), (t2, 1.0), (t3, 0.0)) * a * k.rng.uniform(0.3, 1.0)
+    lean = k.rng.uniform(12.0, 32.0)                       # upright or hips-back squat
+    k.pitch += lean * s
+    k.both("femur_y", -(66.0 + lean) * s)
     k.both("tibia_y", 96.0 * s)
     k.both("femur_x", 8.0 * s)                             # knees track outward over the toes
     k.spine("y", 14.0 * s)
@@ -133,15 +143,16 @@ def squat(k: Take) -> Plan:
 @primitive("bow")
 def bow(k: Take) -> Plan:
     a = k.amp
-    t0 = k.span(0.3, 0.6)
+    t0 = k.span(0.2, 0.9)
     t1 = t0 + k.span(0.7, 0.9)
     t2 = t1 + k.span(0.4, 0.7)
     t3 = t2 + k.span(0.8, 1.0)
-    t = k.begin(t3 + k.span(0.3, 0.6))
-    s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a
+    t = k.begin(t3 + k.span(0.2, 0.9))
+    s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a * k.rng.uniform(0.6, 1.0)
+    knees = k.rng.uniform(0.0, 20.0)                       # some bow with soft knees
     k.pitch += 28.0 * s
-    k.both("femur_y", -24.0 * s)                           # legs stay near vertical under a tipped pelvis
-    k.both("tibia_y", 6.0 * s)
+    k.both("femur_y", -(24.0 + knees) * s)                 # legs stay near vertical under a tipped pelvis
+    k.both("tibia_y", (6.0 + 1.5 * knees) * s)
     k.spine("y", 45.0 * s)
     k.neck("y", 15.0 * s)
     k.both("humerus_y", -50.0 * s)                         # arms hang from the bent trunk
@@ -155,12 +166,12 @@ def bow(k: Take) -> Plan:
 def kick(k: Take) -> Plan:
     """Right front kick: guard up, chamber the knee, snap the shank out, retract, put the foot down."""
     a = k.amp
-    t0 = k.span(0.3, 0.6)
+    t0 = k.span(0.2, 0.9)
     t1 = t0 + k.span(0.35, 0.45)                           # knee chambered
     t2 = t1 + k.span(0.12, 0.18)                           # leg extended
     t3 = t2 + k.span(0.18, 0.25)                           # re-chambered
     t4 = t3 + k.span(0.35, 0.45)                           # foot down
-    t = k.begin(t4 + k.span(0.3, 0.6))
+    t = k.begin(t4 + k.span(0.2, 0.9))
     guard = k.keys((t0 - 0.2, 0.0), (t0 + 0.2, 1.0), (t4, 1.0), (t4 + 0.3, 0.0))
     hip = k.keys((t0, 0.0), (t1, 0.8), (t2, 1.0), (t3, 0.8), (t4, 0.0)) * a
     knee = k.keys((t0, 0.0), (t1, 1.0), (t2, 0.08), (t3, 1.0), (t4, 0.0)) * a
@@ -193,17 +204,21 @@ def _guard_stance(k: Take, guard: np.ndarray) -> None:
 def punch(k: Take) -> Plan:
     """Right straight punch from a guard: trunk twist drives the right arm straight forward."""
     a = k.amp
-    t0 = k.span(0.3, 0.6)
+    t0 = k.span(0.2, 0.9)
     t1 = t0 + k.span(0.35, 0.45)                           # guard up
     t2 = t1 + k.span(0.13, 0.18)                           # arm extended
     t3 = t2 + k.span(0.1, 0.2)
     t4 = t3 + k.span(0.25, 0.35)                           # back to guard
     t5 = t4 + k.span(0.35, 0.45)                           # hands down
-    t = k.begin(t5 + k.span(0.3, 0.6))
+    t = k.begin(t5 + k.span(0.2, 0.9))
     guard = k.keys((t0, 0.0), (t1, 1.0), (t4, 1.0), (t5, 0.0))
     p = k.keys((t1, 0.0), (t2, 1.0), (t3, 1.0), (t4, 0.0)) * a
+    # Some load the punch: a short pull back of the arm and trunk before it goes.
+    load = k.keys((t1 - 0.25 * k.tempo, 0.0), (t1, 1.0), (t2, 0.0)) * k.rng.uniform(0.0, 1.0)
+    k.lr("humerus_y", 0.0, 25.0 * load)
+    k.spine("z", -15.0 * load)
     _guard_stance(k, guard)
-    k.lr("humerus_y", 0.0, -45.0 * p)
+    k.lr("humerus_y", 0.0, k.rng.uniform(-60.0, -30.0) * p)   # body shot to head height
     k.lr("humerus_x", 0.0, -8.0 * p)
     k.lr("radius_y", 0.0, 110.0 * p)
     k.lr("clavicle_z", 0.0, 15.0 * p)                      # shoulder reaches forward
@@ -220,18 +235,19 @@ def punch(k: Take) -> Plan:
 def throw(k: Take) -> Plan:
     """Right overhand throw: wind up (arm back and up, trunk turned away), whip forward, follow through."""
     a = k.amp
-    t0 = k.span(0.3, 0.6)
+    t0 = k.span(0.2, 0.9)
     t1 = t0 + k.span(0.55, 0.7)                            # wound up
     t2 = t1 + k.span(0.15, 0.2)                            # release
     t3 = t2 + k.span(0.25, 0.35)                           # follow-through
     t4 = t3 + k.span(0.6, 0.8)                             # back to rest
-    t = k.begin(t4 + k.span(0.3, 0.6))
+    t = k.begin(t4 + k.span(0.2, 0.9))
     stance = k.keys((t0, 0.0), (t1, 1.0), (t3, 1.0), (t4, 0.0))
     wind = k.keys((t0, 0.0), (t1, 1.0), (t2, 0.0)) * a
     rel = k.keys((t1, 0.0), (t2, 1.0), (t3, 0.7), (t4, 0.0)) * a
     _guard_stance(k, 0.6 * stance)
-    k.lr("humerus_x", 0.0, 90.0 * wind + 20.0 * rel)       # arm raised to the side
-    k.lr("humerus_z", 0.0, 80.0 * wind)                    # forearm up behind the head
+    slot = k.rng.uniform(0.65, 1.1)                        # three-quarter to over the top
+    k.lr("humerus_x", 0.0, 90.0 * slot * wind + 20.0 * rel)
+    k.lr("humerus_z", 0.0, 80.0 * slot * wind)             # forearm up behind the head
     k.lr("humerus_y", -30.0 * wind, 25.0 * wind - 75.0 * rel)
     k.lr("radius_y", 0.0, -20.0 * wind + 70.0 * rel)
     k.spine("z", -30.0 * wind + 30.0 * rel)
