@@ -108,17 +108,21 @@ def render_motion_command(args: argparse.Namespace) -> int:
         want.update(stills.tolist())
     if args.sheet is not None:
         want.update(sheet.tolist())
-    keep_all = args.out is not None
+    render_args = dict(width=args.width, height=args.height, distance=args.distance, azimuth=args.azimuth,
+                       elevation=args.elevation, follow=not args.fixed)
     frames: dict[int, np.ndarray] = {}
     video = []
-    render = render_motion(body.model, qpos, width=args.width, height=args.height, distance=args.distance,
-                           azimuth=args.azimuth, elevation=args.elevation, follow=not args.fixed)
-    if keep_all or want:
-        for t, image in enumerate(render):
-            if keep_all:
-                video.append(image)
+    if args.out is not None:                               # every frame for the video, keep the wanted ones
+        for t, image in enumerate(render_motion(body.model, qpos, **render_args)):
+            video.append(image)
             if t in want:
                 frames[t] = image
+    elif want:                                             # only the wanted frames
+        order = sorted(want)
+        start = qpos[0] if args.fixed else None
+        sub = qpos[order] if start is None else np.concatenate([qpos[:1], qpos[order]])
+        images = list(render_motion(body.model, sub, **render_args))
+        frames = dict(zip(order, images[1:] if start is not None else images))
     if args.out is not None:
         n = write_video(args.out, video, motion.fps)
         print(f"wrote {args.out} ({n} frames, {motion.duration:.2f} s)")
