@@ -30,7 +30,8 @@ from harness import geometry
 from harness.body import BodyModel, forward_points, geom_z_range
 from harness.motion import repertoire  # noqa: F401  (registers the primitives)
 from harness.motion.motion import Motion
-from harness.motion.primitives import JOINT_NAMES, PerformerError, Plan, Take, lookup, registered, soft_clip
+from harness.motion.primitives import (JOINT_NAMES, PerformerError, Plan, Take, lookup, mirror, registered,
+                                      soft_clip)
 
 CLASSES: tuple[str, ...] = ("walk", "run", "jump", "squat", "kick", "punch", "wave", "bow", "throw",
                             "jumping_jack")
@@ -43,6 +44,7 @@ AMP_SPREAD = 0.10               # per take, uniform +-, multiplies amplitudes
 SUBJECT_SPREAD = 0.05           # per subject, log-normal sigma of the tempo and amplitude biases
 NOISE_GAIN = 2.0                # multiplies the per-joint smooth-noise levels of _NOISE_DEG
 POSTURE_GAIN = 2.0              # multiplies the subject posture offsets
+LEFT_SIDED_FRACTION = 0.2       # share of subjects who kick, punch, throw and wave with the left side
 _STYLE_SEED = 0x5EB1EC7         # fixed: a subject id always gives the same style
 _FOOT_GEOMS = ("lfoot", "ltoes", "rfoot", "rtoes")
 
@@ -71,7 +73,8 @@ class SubjectStyle:
     """A performer's fixed manner: tempo and amplitude biases and posture offsets.
 
     tempo, amplitude: multiplicative biases (about 1). posture: ``(50,)`` degrees added to every frame
-    (model sign convention). pitch: degrees of extra forward pelvis tilt.
+    (model sign convention). pitch: degrees of extra forward pelvis tilt. left_sided: performs one-sided
+    primitives (kick, punch, throw, wave) with the left side, as a mirror image.
     """
 
     subject: int
@@ -79,6 +82,7 @@ class SubjectStyle:
     amplitude: float
     posture: np.ndarray
     pitch: float
+    left_sided: bool = False
 
 
 def subject_style(subject: int) -> SubjectStyle:
@@ -101,7 +105,7 @@ def subject_style(subject: int) -> SubjectStyle:
     k.both("femur_x", g.normal(1.0, 2.0))                 # stance width
     k.both("femur_z", g.normal(4.0, 4.0))                 # toe-out
     return SubjectStyle(int(subject), tempo, amplitude, POSTURE_GAIN * k.angles[0].copy(),
-                        float(g.normal(0.0, 2.0)))
+                        float(g.normal(0.0, 2.0)), bool(g.uniform() < LEFT_SIDED_FRACTION))
 
 
 @lru_cache(maxsize=1)
@@ -205,6 +209,8 @@ def perform(label: str, rng: np.random.Generator, fps: float = 30.0, subject: in
                 base_noise=_BASE_NOISE_DEG, smoothing_s=NOISE_SMOOTHING_S,
                 limits=(np.rad2deg(body.lower), np.rad2deg(body.upper)))
     plan: Plan = fn(take)
+    if style.left_sided:
+        plan = mirror(plan)
     angles = soft_clip(np.deg2rad(plan.angles), body.lower, body.upper)
     ypr = np.deg2rad(np.column_stack([plan.yaw, plan.pitch, plan.roll]))
     ypr[:, 0] -= ypr[0, 0]                                            # heading 0 at the first frame

@@ -35,6 +35,12 @@ JOINT_NAMES: tuple[str, ...] = (
     "rfemur_y", "rfemur_x", "rfemur_z", "rtibia_y", "rfoot_y", "rfoot_x", "rtoes_y",
 )
 _INDEX = {name: i for i, name in enumerate(JOINT_NAMES)}
+# Mirror image through the sagittal (x-z) plane: left and right joints swap, and every x (ab/adduction,
+# side bend) and z (twist) angle changes sign; y (flexion) angles keep theirs.
+_SIDED = ("clavicle", "humerus", "radius", "wrist", "hand", "femur", "tibia", "foot", "toes")
+_MIRROR_INDEX = np.array([_INDEX[{"l": "r", "r": "l"}[n[0]] + n[1:] if n[1:].split("_")[0] in _SIDED else n]
+                          for n in JOINT_NAMES])
+_MIRROR_SIGN = np.array([-1.0 if n.endswith(("_x", "_z")) else 1.0 for n in JOINT_NAMES])
 
 
 class PerformerError(HarnessError):
@@ -173,6 +179,12 @@ def soft_clip(angles: np.ndarray, lower: np.ndarray, upper: np.ndarray, margin: 
     hi, lo = upper - m, lower + m
     out = np.where(angles > hi, hi + m * np.tanh((angles - hi) / m), angles)
     return np.where(out < lo, lo + m * np.tanh((out - lo) / m), out)
+
+
+def mirror(plan: Plan) -> Plan:
+    """The same movement performed with the other side (a left-handed or left-footed performer)."""
+    return Plan(plan.angles[:, _MIRROR_INDEX] * _MIRROR_SIGN, -plan.yaw, plan.pitch.copy(), -plan.roll,
+                plan.flight.copy(), plan.flight_speed)
 
 
 def smooth_noise(rng: np.random.Generator, n: int, scale: np.ndarray, fps: float, smoothing_s: float
