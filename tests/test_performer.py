@@ -14,7 +14,9 @@ from harness.errors import HarnessError
 from harness.motion import Motion
 from harness.motion.performer import (CLASSES, demonstrations, perform, place_base,
                                       subject_style)
-from harness.motion.primitives import JOINT_NAMES, UnknownPrimitiveError, registered, smooth_noise, soft_clip
+from harness.body import forward_points
+from harness.motion.primitives import (JOINT_NAMES, Take, UnknownPrimitiveError, lookup, mirror, registered,
+                                       smooth_noise, soft_clip)
 
 SEEDS = 20
 FPS = 20.0          # a lower frame rate keeps the 200-demo sweep fast; placement does not depend on it
@@ -129,6 +131,17 @@ def test_supporting_foot_does_not_slide_when_walking(body, sweep):
             both = support[1:] & support[:-1]
             slide = np.linalg.norm(np.diff(soles[:, side], axis=0), axis=1)[both]
             assert both.sum() > 5 and slide.max() < 0.01
+
+
+def test_mirror_image_is_the_other_side(body):
+    plan = lookup("wave")(Take(10.0, 1.0, 1.0, np.random.default_rng(0)))
+    np.testing.assert_array_equal(mirror(mirror(plan)).angles, plan.angles)
+    hands = [body.body_id("lhand"), body.body_id("rhand")]
+    right = forward_points(body, body.qpos(np.deg2rad(plan.angles)), hands, np.zeros((2, 3)))
+    left = forward_points(body, body.qpos(np.deg2rad(mirror(plan).angles)), hands, np.zeros((2, 3)))
+    assert right[:, 1, 2].max() > right[:, 0, 2].max() + 0.3           # the wave raises the right hand
+    # the mirrored wave puts the left hand where the right one was, reflected through y = 0
+    np.testing.assert_allclose(left[:, 0], right[:, 1] * [1.0, -1.0, 1.0], atol=1e-9)
 
 
 def test_same_seed_gives_bit_identical_motion(body):
