@@ -72,12 +72,14 @@ def contact_sheet(frames: list[np.ndarray], caption: str, times: list[float]) ->
     import cv2
 
     tiles = []
-    for i, (f, t) in enumerate(zip(frames, times)):
-        tile = np.ascontiguousarray(f)
-        label = f"{caption}  {t:.2f}s" if i == 0 else f"{t:.2f}s"
-        cv2.putText(tile, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+    for f, t in zip(frames, times):
+        tile = np.ascontiguousarray(f).copy()
+        cv2.putText(tile, f"{t:.2f}s", (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
         tiles.append(tile)
-    return np.concatenate(tiles, axis=1)
+    sheet = np.concatenate(tiles, axis=1)
+    cv2.putText(sheet, caption, (4, sheet.shape[0] - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
+                cv2.LINE_AA)
+    return sheet
 
 
 @command("render-motion", _args)
