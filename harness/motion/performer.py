@@ -9,7 +9,7 @@ demonstration-to-demonstration variability, and returns humanoid56 ``Motion``s:
   and smooth noise on every angle and on the base orientation (white noise low-passed by a Gaussian of
   ``NOISE_SMOOTHING_S`` seconds);
 - angles are soft-clipped into the joint ranges (identity inside, tanh saturation in the outer
-  ``CLIP_MARGIN`` of each range), so no angle ever leaves its range.
+  ``primitives.CLIP_MARGIN`` of each range), so no angle ever leaves its range.
 
 The base is placed from the feet (``place_base``): its height puts the lowest foot or toe point exactly on
 the floor (z = 0) in every frame that is not airborne, and follows a ballistic arc in airborne frames; its

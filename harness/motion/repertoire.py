@@ -123,7 +123,7 @@ def squat(k: Take) -> Plan:
     t1 = t0 + k.span(0.7, 0.9)
     t2 = t1 + k.span(0.2, 0.4)
     t3 = t2 + k.span(0.7, 0.9)
-    t = k.begin(t3 + k.span(0.2, 0.7))
+    k.begin(t3 + k.span(0.2, 0.7))
     depth = k.rng.uniform(0.7, 1.0)                        # half squat to full squat
     s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a * depth
     arms = k.keys((t0, 0.0), (t1 - 0.2 * k.tempo, 1.0), (t2, 1.0), (t3, 0.0)) * a * k.rng.uniform(0.3, 1.0)
@@ -147,7 +147,7 @@ def bow(k: Take) -> Plan:
     t1 = t0 + k.span(0.6, 0.8)
     t2 = t1 + k.span(0.3, 0.6)
     t3 = t2 + k.span(0.7, 0.9)
-    t = k.begin(t3 + k.span(0.2, 0.7))
+    k.begin(t3 + k.span(0.2, 0.7))
     s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a * k.rng.uniform(0.6, 1.0)
     knees = k.rng.uniform(0.0, 20.0)                       # some bow with soft knees
     k.pitch += 28.0 * s
@@ -171,7 +171,7 @@ def kick(k: Take) -> Plan:
     t2 = t1 + k.span(0.12, 0.18)                           # leg extended
     t3 = t2 + k.span(0.18, 0.25)                           # re-chambered
     t4 = t3 + k.span(0.35, 0.45)                           # foot down
-    t = k.begin(t4 + k.span(0.2, 0.7))
+    k.begin(t4 + k.span(0.2, 0.7))
     guard = k.keys((t0 - 0.2, 0.0), (t0 + 0.2, 1.0), (t4, 1.0), (t4 + 0.3, 0.0))
     hip = k.keys((t0, 0.0), (t1, 0.8), (t2, 1.0), (t3, 0.8), (t4, 0.0)) * a
     knee = k.keys((t0, 0.0), (t1, 1.0), (t2, 0.08), (t3, 1.0), (t4, 0.0)) * a
@@ -210,7 +210,7 @@ def punch(k: Take) -> Plan:
     t3 = t2 + k.span(0.1, 0.2)
     t4 = t3 + k.span(0.25, 0.35)                           # back to guard
     t5 = t4 + k.span(0.35, 0.45)                           # hands down
-    t = k.begin(t5 + k.span(0.2, 0.7))
+    k.begin(t5 + k.span(0.2, 0.7))
     guard = k.keys((t0, 0.0), (t1, 1.0), (t4, 1.0), (t5, 0.0))
     p = k.keys((t1, 0.0), (t2, 1.0), (t3, 1.0), (t4, 0.0)) * a
     # Some load the punch: a short pull back of the arm and trunk before it goes.
@@ -240,7 +240,7 @@ def throw(k: Take) -> Plan:
     t2 = t1 + k.span(0.15, 0.2)                            # release
     t3 = t2 + k.span(0.25, 0.35)                           # follow-through
     t4 = t3 + k.span(0.6, 0.8)                             # back to rest
-    t = k.begin(t4 + k.span(0.2, 0.7))
+    k.begin(t4 + k.span(0.2, 0.7))
     stance = k.keys((t0, 0.0), (t1, 1.0), (t3, 1.0), (t4, 0.0))
     wind = k.keys((t0, 0.0), (t1, 1.0), (t2, 0.0)) * a
     rel = k.keys((t1, 0.0), (t2, 1.0), (t3, 0.7), (t4, 0.0)) * a
