@@ -61,7 +61,7 @@ def walk(k: Take) -> Plan:
     cycles = k.rng.uniform(1.75, 2.0) - 0.2 * brisk        # <= 3 m even for a brisk walker
     t = k.begin(cycles * period)
     phase = TAU * t / period + k.rng.uniform(0.0, TAU)
-    _gait(k, phase, hip=18.0 + 6.0 * brisk, knee_swing=50.0 + 15.0 * brisk, knee_stance=12.0, swing_peak=-0.5,
+    _gait(k, phase, hip=18.0 + 5.0 * brisk, knee_swing=50.0 + 15.0 * brisk, knee_stance=12.0, swing_peak=-0.5,
           arm=12.0 + 14.0 * brisk, elbow=8.0 + 70.0 * brisk * k.rng.uniform(0.3, 1.0), elbow_swing=12.0,
           lean=k.rng.uniform(0.0, 3.0) + 3.0 * brisk, push=18.0)
     return k.plan()
@@ -148,7 +148,7 @@ def bow(k: Take) -> Plan:
     t2 = t1 + k.span(0.3, 0.6)
     t3 = t2 + k.span(0.7, 0.9)
     k.begin(t3 + k.span(0.2, 0.7))
-    s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a * k.rng.uniform(0.6, 1.0)
+    s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a * k.rng.uniform(0.7, 1.0)
     knees = k.rng.uniform(0.0, 20.0)                       # some bow with soft knees
     k.pitch += 28.0 * s
     k.both("femur_y", -(24.0 + knees) * s)                 # legs stay near vertical under a tipped pelvis
