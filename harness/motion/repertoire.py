@@ -121,7 +121,7 @@ def squat(k: Take) -> Plan:
     a = k.amp
     t0 = k.span(0.2, 0.7)
     t1 = t0 + k.span(0.7, 0.9)
-    t2 = t1 + k.span(0.2, 0.4)
+    t2 = t1 + k.span(0.15, 0.35)
     t3 = t2 + k.span(0.7, 0.9)
     k.begin(t3 + k.span(0.2, 0.7))
     depth = k.rng.uniform(0.7, 1.0)                        # half squat to full squat
@@ -145,7 +145,7 @@ def bow(k: Take) -> Plan:
     a = k.amp
     t0 = k.span(0.2, 0.7)
     t1 = t0 + k.span(0.6, 0.8)
-    t2 = t1 + k.span(0.3, 0.6)
+    t2 = t1 + k.span(0.3, 0.5)
     t3 = t2 + k.span(0.7, 0.9)
     k.begin(t3 + k.span(0.2, 0.7))
     s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a * k.rng.uniform(0.7, 1.0)
@@ -267,10 +267,10 @@ def wave(k: Take) -> Plan:
     t0 = k.span(0.3, 0.5)
     t1 = t0 + k.span(0.45, 0.6)                            # arm up
     period = k.span(0.5, 0.65)
-    cycles = k.rng.uniform(1.8, 2.2)
+    cycles = k.rng.uniform(1.8, 2.1)
     t2 = t1 + cycles * period
     t3 = t2 + k.span(0.5, 0.65)
-    t = k.begin(t3 + k.span(0.25, 0.45))
+    t = k.begin(t3 + k.span(0.2, 0.35))
     up = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0))
     wag = np.sin(TAU * (t - t1) / period) * k.keys((t1 - 0.1, 0.0), (t1 + 0.1, 1.0), (t2 - 0.1, 1.0), (t2, 0.0))
     k.lr("humerus_x", 0.0, 85.0 * up + 12.0 * a * wag)
