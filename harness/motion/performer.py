@@ -51,7 +51,7 @@ _FOOT_GEOMS = ("lfoot", "ltoes", "rfoot", "rtoes")
 # Smooth-noise standard deviation per joint (degrees): more in the arms and hands, which people carry
 # freely, less in the legs, whose errors would show as sliding or uneven feet.
 _NOISE_DEG = {"lowerback": 2.0, "upperback": 1.5, "thorax": 1.5, "lowerneck": 3.0, "upperneck": 3.0,
-              "head": 3.0, "clavicle": 2.0, "humerus": 4.5, "radius": 6.0, "wrist": 8.0, "hand": 8.0,
+              "head": 3.0, "clavicle": 2.0, "humerus": 4.5, "radius": 6.0, "wrist": 6.0, "hand": 5.0,
               "femur": 1.2, "tibia": 1.5, "foot": 2.0, "toes": 3.0}
 _BASE_NOISE_DEG = np.array([2.0, 1.0, 1.0])        # yaw, pitch, roll
 

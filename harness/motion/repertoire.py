@@ -47,8 +47,12 @@ def _gait(k: Take, phase: np.ndarray, hip: float, knee_swing: float, knee_stance
     k.neck("y", -0.8 * lean)                              # keep the gaze level
     # Soles parallel to the floor except at push-off, where the heel rises (plantar flexion on top of the
     # leg's own inclination), and just before heel strike, where the toes come up.
+    # In swing the ankle only half follows the knee: a fully flat swinging foot would need more dorsiflexion
+    # than the ankle has, and a hanging one would drag its toes.
     push_l, push_r = bump(phase, -1.9, 4.0), bump(phase + np.pi, -1.9, 4.0)
-    k.flat_feet(1.0 - push_l, 1.0 - push_r)
+    flat_l = np.maximum(bump(phase, np.pi, 2.0), 0.5)
+    flat_r = np.maximum(bump(phase + np.pi, np.pi, 2.0), 0.5)
+    k.flat_feet(flat_l * (1.0 - push_l), flat_r * (1.0 - push_r))
     for side, ph, pb in (("l", phase, push_l), ("r", phase + np.pi, push_r)):
         k.add(side + "foot_y", a * (push * pb - 10.0 * bump(ph, np.pi / 2 - 0.2, 8.0)))
 
