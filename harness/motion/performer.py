@@ -8,6 +8,7 @@ demonstration-to-demonstration variability, and returns humanoid56 ``Motion``s:
 - **per take**: tempo and amplitude factors (together about +-15 %), random phase, random rest lengths,
   and smooth noise on every angle and on the base orientation (white noise low-passed by a Gaussian of
   ``NOISE_SMOOTHING_S`` seconds);
+- **left-sided subjects** (``LEFT_SIDED_FRACTION``) perform the mirror image (left kick, left punch...);
 - angles are soft-clipped into the joint ranges (identity inside, tanh saturation in the outer
   ``primitives.CLIP_MARGIN`` of each range), so no angle ever leaves its range.
 
@@ -92,7 +93,7 @@ def subject_style(subject: int) -> SubjectStyle:
     g = np.random.default_rng([_STYLE_SEED, int(subject)])
     tempo = float(np.exp(g.normal(0.0, SUBJECT_SPREAD)))
     amplitude = float(np.exp(g.normal(0.0, SUBJECT_SPREAD)))
-    k = Take(30.0, 1.0, 1.0, g)
+    k = Take(30.0, 1.0, 1.0, g)                           # one frame, used only for its anatomical helpers
     k.begin(0.0)
     k.spine("y", g.normal(0.0, 3.0))                     # slouch or upright
     k.spine("x", g.normal(0.0, 1.5))

@@ -1,4 +1,8 @@
-"""The ten procedural motion primitives of the performer, registered by name.
+"""What a procedural motion primitive is: the ``Take`` it writes into, the ``Plan`` it returns, the registry.
+
+The ten primitives themselves are in ``harness.motion.repertoire``; ``@primitive(name)`` registers one and
+``lookup(name)`` finds it (an unknown name raises ``UnknownPrimitiveError`` listing the valid ones). Also
+here: ``soft_clip`` (joint limits), ``smooth_noise`` (low-passed variability), ``mirror`` (the other side).
 
 A primitive is a function ``plan(take: Take) -> Plan``: from one take's timing, amplitude and random draws it
 writes the 50 hinge angles (degrees, in *anatomical* terms: see ``Take.lr``) and the base's orientation sway
