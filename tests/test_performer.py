@@ -218,6 +218,21 @@ def test_place_base_keeps_a_standing_pose_still(body):
     np.testing.assert_allclose(base, np.tile([0.0, 0.0, 0.95], (n, 1)), atol=1e-9)
 
 
+def test_place_base_flies_a_ballistic_arc(body):
+    # Standing pose, airborne in frames 10..19 at 20 fps: take-off at frame 9, landing at frame 20, so the
+    # flight lasts T = 11 / 20 s and the apex is g T^2 / 8 above the standing height.
+    n, fps = 30, 20.0
+    flight = np.zeros(n, dtype=bool)
+    flight[10:20] = True
+    quat = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    base = place_base(body, np.zeros((n, 50)), quat, flight, fps, flight_speed=0.5)
+    s = (np.arange(10, 20) - 9) / 11.0
+    np.testing.assert_allclose(base[10:20, 2], 0.95 + 0.5 * 9.81 * (11 / fps) ** 2 * s * (1 - s), atol=1e-9)
+    np.testing.assert_allclose(base[~flight, 2], 0.95, atol=1e-9)
+    # no support motion to carry over: the only travel is flight_speed over the 11 airborne steps
+    np.testing.assert_allclose(base[-1, :2], [0.5 * 11 / fps, 0.0], atol=1e-9)
+
+
 def test_nearest_class_beats_chance_by_a_wide_margin():
     train = make_set(101, 3, TRAIN_SUBJECTS, fps=15.0)
     test = make_set(102, 3, TEST_SUBJECTS, fps=15.0)
