@@ -8,8 +8,9 @@ demonstration-to-demonstration variability, and returns humanoid56 ``Motion``s:
 - **per take**: tempo and amplitude factors (together about +-15 %), random phase, random rest lengths,
   and smooth noise on every angle and on the base orientation (white noise low-passed by a Gaussian of
   ``NOISE_SMOOTHING_S`` seconds);
+- **left-sided subjects** (``LEFT_SIDED_FRACTION``) perform the mirror image (left kick, left punch...);
 - angles are soft-clipped into the joint ranges (identity inside, tanh saturation in the outer
-  ``CLIP_MARGIN`` of each range), so no angle ever leaves its range.
+  ``primitives.CLIP_MARGIN`` of each range), so no angle ever leaves its range.
 
 The base is placed from the feet (``place_base``): its height puts the lowest foot or toe point exactly on
 the floor (z = 0) in every frame that is not airborne, and follows a ballistic arc in airborne frames; its
@@ -25,13 +26,13 @@ from functools import lru_cache
 
 import mujoco
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
 
 from harness import geometry
 from harness.body import BodyModel, forward_points, geom_z_range
 from harness.motion import repertoire  # noqa: F401  (registers the primitives)
 from harness.motion.motion import Motion
-from harness.motion.primitives import JOINT_NAMES, PerformerError, Plan, Take, lookup, registered
+from harness.motion.primitives import (JOINT_NAMES, PerformerError, Plan, Take, lookup, mirror, registered,
+                                      soft_clip)
 
 CLASSES: tuple[str, ...] = ("walk", "run", "jump", "squat", "kick", "punch", "wave", "bow", "throw",
                             "jumping_jack")
@@ -39,18 +40,20 @@ STANDING_HEIGHT = 0.95          # m, pelvis height of the zero pose with the sol
 GRAVITY = 9.81                  # m/s^2, for the airborne arcs
 CONTACT_BLEND = 0.01            # m, height difference over which support passes from one foot to the other
 NOISE_SMOOTHING_S = 0.18        # s, standard deviation of the Gaussian that low-passes the angle noise
-CLIP_MARGIN = 0.08              # fraction of each joint range used by the soft clip
 TEMPO_SPREAD = 0.10             # per take, uniform +-, multiplies durations
 AMP_SPREAD = 0.10               # per take, uniform +-, multiplies amplitudes
 SUBJECT_SPREAD = 0.05           # per subject, log-normal sigma of the tempo and amplitude biases
+NOISE_GAIN = 2.0                # multiplies the per-joint smooth-noise levels of _NOISE_DEG
+POSTURE_GAIN = 2.0              # multiplies the subject posture offsets
+LEFT_SIDED_FRACTION = 0.2       # share of subjects who kick, punch, throw and wave with the left side
 _STYLE_SEED = 0x5EB1EC7         # fixed: a subject id always gives the same style
 _FOOT_GEOMS = ("lfoot", "ltoes", "rfoot", "rtoes")
 
 # Smooth-noise standard deviation per joint (degrees): more in the arms and hands, which people carry
 # freely, less in the legs, whose errors would show as sliding or uneven feet.
-_NOISE_DEG = {"lowerback": 1.5, "upperback": 1.0, "thorax": 1.0, "lowerneck": 2.0, "upperneck": 2.0,
-              "head": 2.0, "clavicle": 1.5, "humerus": 4.0, "radius": 5.0, "wrist": 6.0, "hand": 6.0,
-              "femur": 1.5, "tibia": 2.0, "foot": 1.5, "toes": 3.0}
+_NOISE_DEG = {"lowerback": 2.0, "upperback": 1.5, "thorax": 1.5, "lowerneck": 3.0, "upperneck": 3.0,
+              "head": 3.0, "clavicle": 2.0, "humerus": 4.5, "radius": 6.0, "wrist": 6.0, "hand": 5.0,
+              "femur": 1.2, "tibia": 1.5, "foot": 2.0, "toes": 3.0}
 _BASE_NOISE_DEG = np.array([2.0, 1.0, 1.0])        # yaw, pitch, roll
 
 
@@ -63,7 +66,7 @@ def _noise_scale() -> np.ndarray:
     return out
 
 
-_NOISE_SCALE_DEG = _noise_scale()
+_NOISE_SCALE_DEG = NOISE_GAIN * _noise_scale()
 
 
 @dataclass(frozen=True)
@@ -71,7 +74,8 @@ class SubjectStyle:
     """A performer's fixed manner: tempo and amplitude biases and posture offsets.
 
     tempo, amplitude: multiplicative biases (about 1). posture: ``(50,)`` degrees added to every frame
-    (model sign convention). pitch: degrees of extra forward pelvis tilt.
+    (model sign convention). pitch: degrees of extra forward pelvis tilt. left_sided: performs one-sided
+    primitives (kick, punch, throw, wave) with the left side, as a mirror image.
     """
 
     subject: int
@@ -79,6 +83,7 @@ class SubjectStyle:
     amplitude: float
     posture: np.ndarray
     pitch: float
+    left_sided: bool = False
 
 
 def subject_style(subject: int) -> SubjectStyle:
@@ -88,9 +93,9 @@ def subject_style(subject: int) -> SubjectStyle:
     g = np.random.default_rng([_STYLE_SEED, int(subject)])
     tempo = float(np.exp(g.normal(0.0, SUBJECT_SPREAD)))
     amplitude = float(np.exp(g.normal(0.0, SUBJECT_SPREAD)))
-    k = Take(30.0, 1.0, 1.0, g)
+    k = Take(30.0, 1.0, 1.0, g)                           # one frame, used only for its anatomical helpers
     k.begin(0.0)
-    k.spine("y", g.normal(0.0, 4.0))                     # slouch or upright
+    k.spine("y", g.normal(0.0, 3.0))                     # slouch or upright
     k.spine("x", g.normal(0.0, 1.5))
     k.neck("y", g.normal(0.0, 5.0))
     k.neck("x", g.normal(0.0, 2.0))
@@ -100,37 +105,13 @@ def subject_style(subject: int) -> SubjectStyle:
     k.both("radius_y", -abs(g.normal(0.0, 6.0)))         # elbows a little bent
     k.both("femur_x", g.normal(1.0, 2.0))                 # stance width
     k.both("femur_z", g.normal(4.0, 4.0))                 # toe-out
-    return SubjectStyle(int(subject), tempo, amplitude, k.angles[0].copy(), float(g.normal(0.0, 2.0)))
+    return SubjectStyle(int(subject), tempo, amplitude, POSTURE_GAIN * k.angles[0].copy(),
+                        float(g.normal(0.0, 2.0)), bool(g.uniform() < LEFT_SIDED_FRACTION))
 
 
 @lru_cache(maxsize=1)
 def _default_body() -> BodyModel:
     return BodyModel.load()
-
-
-def soft_clip(angles: np.ndarray, lower: np.ndarray, upper: np.ndarray, margin: float = CLIP_MARGIN
-              ) -> np.ndarray:
-    """Clip ``angles (..., J)`` into ``[lower, upper] (J,)`` softly: identity in the interior, and in the
-    outer ``margin`` fraction of the range ``edge + m tanh((x - edge) / m)``, which is C1 and never reaches
-    the limit."""
-    m = margin * (upper - lower)
-    hi, lo = upper - m, lower + m
-    out = np.where(angles > hi, hi + m * np.tanh((angles - hi) / m), angles)
-    return np.where(out < lo, lo + m * np.tanh((out - lo) / m), out)
-
-
-def smooth_noise(rng: np.random.Generator, n: int, scale: np.ndarray, fps: float,
-                 smoothing_s: float = NOISE_SMOOTHING_S) -> np.ndarray:
-    """Low-pass Gaussian noise ``(n, len(scale))`` whose per-column standard deviation is ``scale``.
-
-    White noise filtered by a unit-sum Gaussian of ``s = smoothing_s * fps`` samples has standard deviation
-    ``(2 sqrt(pi) s)^-1/2``; dividing by it restores unit variance.
-    """
-    scale = np.asarray(scale, dtype=float)
-    s = smoothing_s * fps
-    white = rng.standard_normal((n, len(scale)))
-    smooth = gaussian_filter1d(white, s, axis=0, mode="reflect") * np.sqrt(2.0 * np.sqrt(np.pi) * s)
-    return smooth * scale
 
 
 def _orientation(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
@@ -210,8 +191,12 @@ def place_base(body: BodyModel, angles: np.ndarray, quat: np.ndarray, flight: np
 
 
 def perform(label: str, rng: np.random.Generator, fps: float = 30.0, subject: int | None = None,
-            body: BodyModel | None = None, demo: str = "0") -> Motion:
-    """One demonstration of ``label`` (see ``demonstrations``)."""
+            body: BodyModel | None = None, demo: str = "0") -> tuple[Motion, np.ndarray]:
+    """One demonstration of ``label`` (see ``demonstrations``) and its airborne frames ``(T,)`` bool.
+
+    The airborne mask says which frames the primitive planned off the ground (both feet in the air); in all
+    other frames the lowest foot point is on the floor. Useful as contact labels and for checks.
+    """
     fn = lookup(label)
     if not (np.isfinite(fps) and fps > 0):
         raise PerformerError(f"fps must be positive, got {fps}")
@@ -221,17 +206,20 @@ def perform(label: str, rng: np.random.Generator, fps: float = 30.0, subject: in
     style = subject_style(subject)
     tempo = style.tempo * rng.uniform(1.0 - TEMPO_SPREAD, 1.0 + TEMPO_SPREAD)
     amp = style.amplitude * rng.uniform(1.0 - AMP_SPREAD, 1.0 + AMP_SPREAD)
-    plan: Plan = fn(Take(fps, tempo, amp, rng))
-    n = len(plan.angles)
-    angles_deg = plan.angles + style.posture + smooth_noise(rng, n, _NOISE_SCALE_DEG, fps)
-    angles = soft_clip(np.deg2rad(angles_deg), body.lower, body.upper)
-    ypr = np.column_stack([plan.yaw, plan.pitch + style.pitch, plan.roll]) + smooth_noise(rng, n, _BASE_NOISE_DEG, fps)
-    ypr = np.deg2rad(ypr)
+    take = Take(fps, tempo, amp, rng, posture=style.posture, pitch=style.pitch, noise=_NOISE_SCALE_DEG,
+                base_noise=_BASE_NOISE_DEG, smoothing_s=NOISE_SMOOTHING_S,
+                limits=(np.rad2deg(body.lower), np.rad2deg(body.upper)))
+    plan: Plan = fn(take)
+    if style.left_sided:
+        plan = mirror(plan)
+    angles = soft_clip(np.deg2rad(plan.angles), body.lower, body.upper)
+    ypr = np.deg2rad(np.column_stack([plan.yaw, plan.pitch, plan.roll]))
     ypr[:, 0] -= ypr[0, 0]                                            # heading 0 at the first frame
     quat = _orientation(ypr[:, 0], ypr[:, 1], ypr[:, 2])
     base = place_base(body, angles, quat, plan.flight, fps, plan.flight_speed)
     qpos = body.qpos(angles, base_pos=base, base_quat=quat)
-    return Motion(qpos=qpos, fps=fps, label=label, subject=str(subject), demo=demo, source="procedural")
+    motion = Motion(qpos=qpos, fps=fps, label=label, subject=str(subject), demo=demo, source="procedural")
+    return motion, plan.flight.copy()
 
 
 def demonstrations(label: str, n: int, rng: np.random.Generator, fps: float = 30.0,
@@ -244,7 +232,7 @@ def demonstrations(label: str, n: int, rng: np.random.Generator, fps: float = 30
     lookup(label)
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
         raise PerformerError(f"number of demonstrations must be a non-negative integer, got {n!r}")
-    return [perform(label, rng, fps, subject, body, demo=str(i)) for i in range(n)]
+    return [perform(label, rng, fps, subject, body, demo=str(i))[0] for i in range(n)]
 
 
 if set(CLASSES) != set(registered()):      # a primitive added to the repertoire must be named here too

@@ -1,4 +1,8 @@
-"""The ten procedural motion primitives of the performer, registered by name.
+"""What a procedural motion primitive is: the ``Take`` it writes into, the ``Plan`` it returns, the registry.
+
+The ten primitives themselves are in ``harness.motion.repertoire``; ``@primitive(name)`` registers one and
+``lookup(name)`` finds it (an unknown name raises ``UnknownPrimitiveError`` listing the valid ones). Also
+here: ``soft_clip`` (joint limits), ``smooth_noise`` (low-passed variability), ``mirror`` (the other side).
 
 A primitive is a function ``plan(take: Take) -> Plan``: from one take's timing, amplitude and random draws it
 writes the 50 hinge angles (degrees, in *anatomical* terms: see ``Take.lr``) and the base's orientation sway
@@ -18,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
 from harness.errors import HarnessError
 
@@ -34,6 +39,12 @@ JOINT_NAMES: tuple[str, ...] = (
     "rfemur_y", "rfemur_x", "rfemur_z", "rtibia_y", "rfoot_y", "rfoot_x", "rtoes_y",
 )
 _INDEX = {name: i for i, name in enumerate(JOINT_NAMES)}
+# Mirror image through the sagittal (x-z) plane: left and right joints swap, and every x (ab/adduction,
+# side bend) and z (twist) angle changes sign; y (flexion) angles keep theirs.
+_SIDED = ("clavicle", "humerus", "radius", "wrist", "hand", "femur", "tibia", "foot", "toes")
+_MIRROR_INDEX = np.array([_INDEX[{"l": "r", "r": "l"}[n[0]] + n[1:] if n[1:].split("_")[0] in _SIDED else n]
+                          for n in JOINT_NAMES])
+_MIRROR_SIGN = np.array([-1.0 if n.endswith(("_x", "_z")) else 1.0 for n in JOINT_NAMES])
 
 
 class PerformerError(HarnessError):
@@ -71,16 +82,31 @@ class Take:
     calls ``begin(duration)``, which sets ``t`` (``(T,)`` seconds) and zeroes the trajectories.
     """
 
-    def __init__(self, fps: float, tempo: float, amp: float, rng: np.random.Generator):
+    def __init__(self, fps: float, tempo: float, amp: float, rng: np.random.Generator,
+                 posture: np.ndarray | None = None, pitch: float = 0.0, noise: np.ndarray | None = None,
+                 base_noise: np.ndarray | None = None, smoothing_s: float = 0.2,
+                 limits: tuple[np.ndarray, np.ndarray] | None = None):
         self.fps, self.tempo, self.amp, self.rng = fps, tempo, amp, rng
+        self.limits = limits
+        self.posture = np.zeros(N_ANGLES) if posture is None else np.asarray(posture, dtype=float)
+        self.posture_pitch = pitch
+        self.noise = np.zeros(N_ANGLES) if noise is None else np.asarray(noise, dtype=float)
+        self.base_noise = np.zeros(3) if base_noise is None else np.asarray(base_noise, dtype=float)
+        self.smoothing_s = smoothing_s
         self.t = np.zeros(0)
 
     def begin(self, duration: float) -> np.ndarray:
-        """Allocate ``round(duration * fps) + 1`` frames; returns the times ``(T,)`` in seconds."""
+        """Allocate ``round(duration * fps) + 1`` frames; returns the times ``(T,)`` in seconds.
+
+        Trajectories start from the subject's posture plus smooth noise (``posture``, ``noise`` per joint
+        and ``base_noise`` for yaw, pitch, roll, all degrees), so that what a primitive computes from the
+        current angles (``flat_feet``) sees the whole pose.
+        """
         n = int(round(duration * self.fps)) + 1
         self.t = np.arange(n) / self.fps
-        self.angles = np.zeros((n, N_ANGLES))
-        self.yaw, self.pitch, self.roll = np.zeros(n), np.zeros(n), np.zeros(n)
+        self.angles = self.posture + smooth_noise(self.rng, n, self.noise, self.fps, self.smoothing_s)
+        ypr = smooth_noise(self.rng, n, self.base_noise, self.fps, self.smoothing_s)
+        self.yaw, self.pitch, self.roll = ypr[:, 0], ypr[:, 1] + self.posture_pitch, ypr[:, 2]
         self.flight = np.zeros(n, dtype=bool)
         return self.t
 
@@ -118,9 +144,11 @@ class Take:
         keeps it flat is minus the sum of the others.
         """
         weight_right = weight_left if weight_right is None else weight_right
+        # Hip and knee as they will be after soft clipping (the ankle is clipped in its turn afterwards).
+        legs = self.angles if self.limits is None else soft_clip(self.angles, *self.limits)
         for side, w in (("l", weight_left), ("r", weight_right)):
-            chain = (self.pitch + self.angles[:, _INDEX[side + "femur_y"]]
-                     + self.angles[:, _INDEX[side + "tibia_y"]] + self.angles[:, _INDEX[side + "foot_y"]])
+            chain = (self.pitch + legs[:, _INDEX[side + "femur_y"]]
+                     + legs[:, _INDEX[side + "tibia_y"]] + self.angles[:, _INDEX[side + "foot_y"]])
             self.angles[:, _INDEX[side + "foot_y"]] -= np.asarray(w) * chain
 
     def plan(self, flight_speed: float = 0.0) -> Plan:
@@ -141,6 +169,40 @@ class Take:
         s = np.clip((self.t - times[i]) / dt, 0.0, 1.0)
         s = s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
         return values[i] + (values[i + 1] - values[i]) * s
+
+
+CLIP_MARGIN = 0.08              # fraction of each joint range used by the soft clip
+
+
+def soft_clip(angles: np.ndarray, lower: np.ndarray, upper: np.ndarray, margin: float = CLIP_MARGIN
+              ) -> np.ndarray:
+    """Clip ``angles (..., J)`` into ``[lower, upper] (J,)`` softly (any unit): identity in the interior, and
+    in the outer ``margin`` fraction of the range ``edge + m tanh((x - edge) / m)``, which is C1 and reaches
+    the limit only asymptotically."""
+    m = margin * (upper - lower)
+    hi, lo = upper - m, lower + m
+    out = np.where(angles > hi, hi + m * np.tanh((angles - hi) / m), angles)
+    return np.where(out < lo, lo + m * np.tanh((out - lo) / m), out)
+
+
+def mirror(plan: Plan) -> Plan:
+    """The same movement performed with the other side (a left-handed or left-footed performer)."""
+    return Plan(plan.angles[:, _MIRROR_INDEX] * _MIRROR_SIGN, -plan.yaw, plan.pitch.copy(), -plan.roll,
+                plan.flight.copy(), plan.flight_speed)
+
+
+def smooth_noise(rng: np.random.Generator, n: int, scale: np.ndarray, fps: float, smoothing_s: float
+                 ) -> np.ndarray:
+    """Low-pass Gaussian noise ``(n, len(scale))`` whose per-column standard deviation is ``scale``.
+
+    White noise filtered by a unit-sum Gaussian of ``s = smoothing_s * fps`` samples has standard deviation
+    ``(2 sqrt(pi) s)^-1/2``; multiplying by its inverse restores unit variance.
+    """
+    scale = np.asarray(scale, dtype=float)
+    s = smoothing_s * fps
+    white = rng.standard_normal((n, len(scale)))
+    smooth = gaussian_filter1d(white, s, axis=0, mode="reflect") * np.sqrt(2.0 * np.sqrt(np.pi) * s)
+    return smooth * scale
 
 
 def bump(phase: np.ndarray, centre: float, sharpness: float) -> np.ndarray:

@@ -72,12 +72,14 @@ def contact_sheet(frames: list[np.ndarray], caption: str, times: list[float]) ->
     import cv2
 
     tiles = []
-    for i, (f, t) in enumerate(zip(frames, times)):
-        tile = np.ascontiguousarray(f)
-        label = f"{caption}  {t:.2f}s" if i == 0 else f"{t:.2f}s"
-        cv2.putText(tile, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+    for f, t in zip(frames, times):
+        tile = np.ascontiguousarray(f).copy()
+        cv2.putText(tile, f"{t:.2f}s", (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
         tiles.append(tile)
-    return np.concatenate(tiles, axis=1)
+    sheet = np.concatenate(tiles, axis=1)
+    cv2.putText(sheet, caption, (4, sheet.shape[0] - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
+                cv2.LINE_AA)
+    return sheet
 
 
 @command("render-motion", _args)
@@ -108,17 +110,21 @@ def render_motion_command(args: argparse.Namespace) -> int:
         want.update(stills.tolist())
     if args.sheet is not None:
         want.update(sheet.tolist())
-    keep_all = args.out is not None
+    render_args = dict(width=args.width, height=args.height, distance=args.distance, azimuth=args.azimuth,
+                       elevation=args.elevation, follow=not args.fixed)
     frames: dict[int, np.ndarray] = {}
     video = []
-    render = render_motion(body.model, qpos, width=args.width, height=args.height, distance=args.distance,
-                           azimuth=args.azimuth, elevation=args.elevation, follow=not args.fixed)
-    if keep_all or want:
-        for t, image in enumerate(render):
-            if keep_all:
-                video.append(image)
+    if args.out is not None:                               # every frame for the video, keep the wanted ones
+        for t, image in enumerate(render_motion(body.model, qpos, **render_args)):
+            video.append(image)
             if t in want:
                 frames[t] = image
+    elif want:                                             # only the wanted frames
+        order = sorted(want)
+        start = qpos[0] if args.fixed else None
+        sub = qpos[order] if start is None else np.concatenate([qpos[:1], qpos[order]])
+        images = list(render_motion(body.model, sub, **render_args))
+        frames = dict(zip(order, images[1:] if start is not None else images))
     if args.out is not None:
         n = write_video(args.out, video, motion.fps)
         print(f"wrote {args.out} ({n} frames, {motion.duration:.2f} s)")

@@ -45,32 +45,43 @@ def _gait(k: Take, phase: np.ndarray, hip: float, knee_swing: float, knee_stance
     k.pitch += lean + 2.0 * a * np.cos(2.0 * phase)
     k.spine("y", 0.5 * lean + 2.0 * np.cos(2.0 * phase))
     k.neck("y", -0.8 * lean)                              # keep the gaze level
-    # Soles parallel to the floor except for the push-off (plantar flexion before toe-off) and the toes-up
-    # of the reaching foot just before heel strike.
-    k.flat_feet(1.0)
-    for side, ph in (("l", phase), ("r", phase + np.pi)):
-        k.add(side + "foot_y", a * (push * bump(ph, -1.9, 4.0) - 10.0 * bump(ph, np.pi / 2 - 0.2, 8.0)))
+    # Soles parallel to the floor except at push-off, where the heel rises (plantar flexion on top of the
+    # leg's own inclination), and just before heel strike, where the toes come up.
+    # In swing the ankle only half follows the knee: a fully flat swinging foot would need more dorsiflexion
+    # than the ankle has, and a hanging one would drag its toes.
+    push_l, push_r = bump(phase, -1.9, 4.0), bump(phase + np.pi, -1.9, 4.0)
+    flat_l = np.maximum(bump(phase, np.pi, 2.0), 0.5)
+    flat_r = np.maximum(bump(phase + np.pi, np.pi, 2.0), 0.5)
+    k.flat_feet(flat_l * (1.0 - push_l), flat_r * (1.0 - push_r))
+    for side, ph, pb in (("l", phase, push_l), ("r", phase + np.pi, push_r)):
+        k.add(side + "foot_y", a * (push * pb - 10.0 * bump(ph, np.pi / 2 - 0.2, 8.0)))
 
 
 @primitive("walk")
 def walk(k: Take) -> Plan:
-    period = k.span(1.0, 1.1)
-    cycles = k.rng.uniform(1.9, 2.1)
+    # From a stroll (straight arms) to a power walk (long stride, bent elbows, leaning into it).
+    brisk = k.rng.uniform(0.0, 1.0)
+    period = k.span(0.95, 1.1)
+    cycles = k.rng.uniform(1.75, 2.0) - 0.2 * brisk        # <= 3 m even for a brisk walker
     t = k.begin(cycles * period)
     phase = TAU * t / period + k.rng.uniform(0.0, TAU)
-    _gait(k, phase, hip=22.0, knee_swing=58.0, knee_stance=12.0, swing_peak=-0.5, arm=16.0, elbow=12.0,
-          elbow_swing=12.0, lean=2.0, push=22.0)
+    _gait(k, phase, hip=18.0 + 5.0 * brisk, knee_swing=50.0 + 15.0 * brisk, knee_stance=12.0, swing_peak=-0.5,
+          arm=12.0 + 14.0 * brisk, elbow=8.0 + 70.0 * brisk * k.rng.uniform(0.3, 1.0), elbow_swing=12.0,
+          lean=k.rng.uniform(0.0, 3.0) + 3.0 * brisk, push=18.0)
     return k.plan()
 
 
 @primitive("run")
 def run(k: Take) -> Plan:
+    # Intensity from a relaxed jog (short stride, low heels, arms half bent) to a stride.
+    effort = k.rng.uniform(0.0, 1.0)
     period = k.span(0.66, 0.72)
-    cycles = k.rng.uniform(1.5, 1.7)                       # shorter: a runner covers ~3 m in ~1.1 s
+    cycles = k.rng.uniform(1.35, 1.55) - 0.15 * effort       # shorter: a runner covers ~3 m in ~1 s
     t = k.begin(cycles * period)
     phase = TAU * t / period + k.rng.uniform(0.0, TAU)
-    _gait(k, phase, hip=40.0, knee_swing=95.0, knee_stance=30.0, swing_peak=-0.2, arm=28.0, elbow=80.0,
-          elbow_swing=15.0, lean=9.0, push=30.0)
+    _gait(k, phase, hip=26.0 + 10.0 * effort, knee_swing=60.0 + 45.0 * effort, knee_stance=25.0 + 8.0 * effort,
+          swing_peak=-0.2, arm=18.0 + 14.0 * effort, elbow=k.rng.uniform(40.0, 90.0), elbow_swing=15.0,
+          lean=3.0 + 8.0 * effort, push=30.0)
     # Airborne between toe-off of one leg and touch-down of the other: stance of the left leg is the
     # stretch of phase within 0.3 pi of pi (mid-stance), of the right leg within 0.3 pi of 0.
     wrapped = np.mod(phase, np.pi)                         # both legs' stance centres map to 0 / pi
@@ -82,15 +93,16 @@ def run(k: Take) -> Plan:
 def jump(k: Take) -> Plan:
     """Counter-movement jump: crouch with the arms back, extend and swing the arms up, fly, land, recover."""
     a = k.amp
-    t0 = k.span(0.3, 0.6)
+    t0 = k.span(0.2, 0.7)
     t1 = t0 + k.span(0.5, 0.6)                             # bottom of the crouch
     t2 = t1 + k.span(0.18, 0.22)                           # take-off
     t3 = t2 + k.rng.uniform(0.36, 0.44) * np.sqrt(a)       # landing: flight time sets the height
     t4 = t3 + k.span(0.18, 0.22)                           # deepest landing
     t5 = t4 + k.span(0.5, 0.7)
-    t = k.begin(t5 + k.span(0.3, 0.6))
-    crouch = k.keys((t0, 0.0), (t1, 1.0), (t2, 0.0), (t3, 0.0), (t4, 0.7), (t5, 0.0))
-    arms_up = k.keys((t1, 0.0), (t2, 1.0), (t3, 0.8), (t4, 0.2), (t5, 0.0))
+    t = k.begin(t5 + k.span(0.2, 0.7))
+    depth = k.rng.uniform(0.6, 1.0)
+    crouch = k.keys((t0, 0.0), (t1, depth), (t2, 0.0), (t3, 0.0), (t4, 0.7 * depth), (t5, 0.0))
+    arms_up = k.keys((t1 - 0.12, 0.0), (t2, 1.0), (t3, 0.8), (t4, 0.2), (t5, 0.0))   # swing starts early
     tuck = k.keys((t2, 0.0), (0.5 * (t2 + t3), 1.0), (t3, 0.0))
     push = k.keys((t1, 0.0), (t2, 1.0), (t2 + 0.1, 0.3), (t3, 0.0))
     k.pitch += a * (26.0 * crouch + 4.0 * tuck)
@@ -103,7 +115,7 @@ def jump(k: Take) -> Plan:
     k.both("humerus_x", 10.0 * arms_up)
     k.flat_feet(1.0 - push)
     k.both("foot_y", 35.0 * a * push)
-    k.both("toes_y", -30.0 * a * push * (t < t2 + 0.05))
+    k.both("toes_y", -30.0 * a * k.keys((t1, 0.0), (t2, 1.0), (t2 + 0.12, 0.0)))   # toes bend at take-off
     k.flight[:] = (t >= t2) & (t < t3)
     return k.plan(flight_speed=k.rng.uniform(0.3, 0.8))
 
@@ -111,15 +123,17 @@ def jump(k: Take) -> Plan:
 @primitive("squat")
 def squat(k: Take) -> Plan:
     a = k.amp
-    t0 = k.span(0.3, 0.6)
-    t1 = t0 + k.span(0.8, 1.0)
-    t2 = t1 + k.span(0.2, 0.5)
-    t3 = t2 + k.span(0.8, 1.0)
-    t = k.begin(t3 + k.span(0.3, 0.6))
-    s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a
-    arms = k.keys((t0, 0.0), (t1 - 0.2 * k.tempo, 1.0), (t2, 1.0), (t3, 0.0)) * a
-    k.pitch += 22.0 * s
-    k.both("femur_y", -88.0 * s)
+    t0 = k.span(0.2, 0.7)
+    t1 = t0 + k.span(0.7, 0.9)
+    t2 = t1 + k.span(0.15, 0.35)
+    t3 = t2 + k.span(0.7, 0.9)
+    k.begin(t3 + k.span(0.2, 0.7))
+    depth = k.rng.uniform(0.7, 1.0)                        # half squat to full squat
+    s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a * depth
+    arms = k.keys((t0, 0.0), (t1 - 0.2 * k.tempo, 1.0), (t2, 1.0), (t3, 0.0)) * a * k.rng.uniform(0.3, 1.0)
+    lean = k.rng.uniform(12.0, 32.0)                       # upright or hips-back squat
+    k.pitch += lean * s
+    k.both("femur_y", -(66.0 + lean) * s)
     k.both("tibia_y", 96.0 * s)
     k.both("femur_x", 8.0 * s)                             # knees track outward over the toes
     k.spine("y", 14.0 * s)
@@ -133,15 +147,16 @@ def squat(k: Take) -> Plan:
 @primitive("bow")
 def bow(k: Take) -> Plan:
     a = k.amp
-    t0 = k.span(0.3, 0.6)
-    t1 = t0 + k.span(0.7, 0.9)
-    t2 = t1 + k.span(0.4, 0.7)
-    t3 = t2 + k.span(0.8, 1.0)
-    t = k.begin(t3 + k.span(0.3, 0.6))
-    s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a
+    t0 = k.span(0.2, 0.7)
+    t1 = t0 + k.span(0.6, 0.8)
+    t2 = t1 + k.span(0.3, 0.5)
+    t3 = t2 + k.span(0.7, 0.9)
+    k.begin(t3 + k.span(0.2, 0.7))
+    s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a * k.rng.uniform(0.7, 1.0)
+    knees = k.rng.uniform(0.0, 20.0)                       # some bow with soft knees
     k.pitch += 28.0 * s
-    k.both("femur_y", -24.0 * s)                           # legs stay near vertical under a tipped pelvis
-    k.both("tibia_y", 6.0 * s)
+    k.both("femur_y", -(24.0 + knees) * s)                 # legs stay near vertical under a tipped pelvis
+    k.both("tibia_y", (6.0 + 1.5 * knees) * s)
     k.spine("y", 45.0 * s)
     k.neck("y", 15.0 * s)
     k.both("humerus_y", -50.0 * s)                         # arms hang from the bent trunk
@@ -155,12 +170,12 @@ def bow(k: Take) -> Plan:
 def kick(k: Take) -> Plan:
     """Right front kick: guard up, chamber the knee, snap the shank out, retract, put the foot down."""
     a = k.amp
-    t0 = k.span(0.3, 0.6)
+    t0 = k.span(0.2, 0.7)
     t1 = t0 + k.span(0.35, 0.45)                           # knee chambered
     t2 = t1 + k.span(0.12, 0.18)                           # leg extended
     t3 = t2 + k.span(0.18, 0.25)                           # re-chambered
     t4 = t3 + k.span(0.35, 0.45)                           # foot down
-    t = k.begin(t4 + k.span(0.3, 0.6))
+    k.begin(t4 + k.span(0.2, 0.7))
     guard = k.keys((t0 - 0.2, 0.0), (t0 + 0.2, 1.0), (t4, 1.0), (t4 + 0.3, 0.0))
     hip = k.keys((t0, 0.0), (t1, 0.8), (t2, 1.0), (t3, 0.8), (t4, 0.0)) * a
     knee = k.keys((t0, 0.0), (t1, 1.0), (t2, 0.08), (t3, 1.0), (t4, 0.0)) * a
@@ -193,17 +208,21 @@ def _guard_stance(k: Take, guard: np.ndarray) -> None:
 def punch(k: Take) -> Plan:
     """Right straight punch from a guard: trunk twist drives the right arm straight forward."""
     a = k.amp
-    t0 = k.span(0.3, 0.6)
+    t0 = k.span(0.2, 0.7)
     t1 = t0 + k.span(0.35, 0.45)                           # guard up
     t2 = t1 + k.span(0.13, 0.18)                           # arm extended
     t3 = t2 + k.span(0.1, 0.2)
     t4 = t3 + k.span(0.25, 0.35)                           # back to guard
     t5 = t4 + k.span(0.35, 0.45)                           # hands down
-    t = k.begin(t5 + k.span(0.3, 0.6))
+    k.begin(t5 + k.span(0.2, 0.7))
     guard = k.keys((t0, 0.0), (t1, 1.0), (t4, 1.0), (t5, 0.0))
     p = k.keys((t1, 0.0), (t2, 1.0), (t3, 1.0), (t4, 0.0)) * a
+    # Some load the punch: a short pull back of the arm and trunk before it goes.
+    load = k.keys((t1 - 0.25 * k.tempo, 0.0), (t1, 1.0), (t2, 0.0)) * k.rng.uniform(0.0, 1.0)
+    k.lr("humerus_y", 0.0, 25.0 * load)
+    k.spine("z", -15.0 * load)
     _guard_stance(k, guard)
-    k.lr("humerus_y", 0.0, -45.0 * p)
+    k.lr("humerus_y", 0.0, k.rng.uniform(-60.0, -30.0) * p)   # body shot to head height
     k.lr("humerus_x", 0.0, -8.0 * p)
     k.lr("radius_y", 0.0, 110.0 * p)
     k.lr("clavicle_z", 0.0, 15.0 * p)                      # shoulder reaches forward
@@ -220,18 +239,19 @@ def punch(k: Take) -> Plan:
 def throw(k: Take) -> Plan:
     """Right overhand throw: wind up (arm back and up, trunk turned away), whip forward, follow through."""
     a = k.amp
-    t0 = k.span(0.3, 0.6)
+    t0 = k.span(0.2, 0.7)
     t1 = t0 + k.span(0.55, 0.7)                            # wound up
     t2 = t1 + k.span(0.15, 0.2)                            # release
     t3 = t2 + k.span(0.25, 0.35)                           # follow-through
     t4 = t3 + k.span(0.6, 0.8)                             # back to rest
-    t = k.begin(t4 + k.span(0.3, 0.6))
+    k.begin(t4 + k.span(0.2, 0.7))
     stance = k.keys((t0, 0.0), (t1, 1.0), (t3, 1.0), (t4, 0.0))
     wind = k.keys((t0, 0.0), (t1, 1.0), (t2, 0.0)) * a
     rel = k.keys((t1, 0.0), (t2, 1.0), (t3, 0.7), (t4, 0.0)) * a
     _guard_stance(k, 0.6 * stance)
-    k.lr("humerus_x", 0.0, 90.0 * wind + 20.0 * rel)       # arm raised to the side
-    k.lr("humerus_z", 0.0, 80.0 * wind)                    # forearm up behind the head
+    slot = k.rng.uniform(0.65, 1.1)                        # three-quarter to over the top
+    k.lr("humerus_x", 0.0, 90.0 * slot * wind + 20.0 * rel)
+    k.lr("humerus_z", 0.0, 80.0 * slot * wind)             # forearm up behind the head
     k.lr("humerus_y", -30.0 * wind, 25.0 * wind - 75.0 * rel)
     k.lr("radius_y", 0.0, -20.0 * wind + 70.0 * rel)
     k.spine("z", -30.0 * wind + 30.0 * rel)
@@ -251,10 +271,10 @@ def wave(k: Take) -> Plan:
     t0 = k.span(0.3, 0.5)
     t1 = t0 + k.span(0.45, 0.6)                            # arm up
     period = k.span(0.5, 0.65)
-    cycles = k.rng.uniform(1.8, 2.2)
+    cycles = k.rng.uniform(1.8, 2.1)
     t2 = t1 + cycles * period
     t3 = t2 + k.span(0.5, 0.65)
-    t = k.begin(t3 + k.span(0.25, 0.45))
+    t = k.begin(t3 + k.span(0.2, 0.35))
     up = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0))
     wag = np.sin(TAU * (t - t1) / period) * k.keys((t1 - 0.1, 0.0), (t1 + 0.1, 1.0), (t2 - 0.1, 1.0), (t2, 0.0))
     k.lr("humerus_x", 0.0, 85.0 * up + 12.0 * a * wag)
