@@ -77,6 +77,13 @@ class Recognizer:
         return np.exp(self.log_alpha - logsumexp(self.log_alpha))
 
     @property
+    def state_posterior(self) -> np.ndarray:
+        """``(C, K)`` posterior over states given each primitive (rows sum to one, even for a primitive whose
+        own probability underflows)."""
+        p = np.exp(self.log_alpha - self.log_alpha.max(axis=1, keepdims=True))
+        return p / p.sum(axis=1, keepdims=True)
+
+    @property
     def class_posterior(self) -> np.ndarray:
         """``(C,)`` posterior over primitives."""
         p = self.posterior.sum(axis=1)

@@ -188,8 +188,7 @@ class Tracker:
         cls_post = self.recognizer.class_posterior
         K = self.db.means_.shape[1]
         best = int(np.argmax(cls_post))
-        gamma = self.recognizer.posterior[best]
-        gamma = gamma / gamma.sum()
+        gamma = self.recognizer.state_posterior[best]
         idx = best * K + np.arange(K)
         theta0 = gamma @ self._state_angles[idx]
         var = gamma @ (self._state_angle_var[idx] + (self._state_angles[idx] - theta0) ** 2)
