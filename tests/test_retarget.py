@@ -136,3 +136,32 @@ def test_retargeted_captures_are_not_mirrored(name, start, source_names, body):
     # And humanoid56's convention: its base y axis points to its left.
     for a, b in PAIRS:
         assert np.mean(origins[:, body.body_id(a) - 1, 1] > origins[:, body.body_id(b) - 1, 1]) > 0.9
+
+
+def test_sites_drive_toes_wrist_twist_and_hands(body, rng):
+    """With the toe tips, knuckles and thumb tips as targets, the angles no joint centre can see (toes,
+    wrist twist, hand flexion and deviation) are recovered; with joint centres alone they stay at zero."""
+    from harness.motion.skeletons import SITES
+    from harness.motion.retarget import target_points
+
+    # Two frames of one pose (a second, different pose would test the warm start, not the sites).
+    q = np.repeat(_pose(body, rng, 1), 2, axis=0)
+    q[:, 7:16] = 0.0                       # straight spine, as in the exact-retarget test above
+    hidden = [body.angle_index(n) for n in ("ltoes_y", "rtoes_y", "lwrist_z", "rwrist_z", "lhand_y", "lhand_x",
+                                            "rhand_y", "rhand_x")]
+    angles = body.angles(q)
+    angles[:, hidden] = rng.uniform(-0.4, 0.4, len(hidden))
+    q = body.qpos(angles, q[:, :3], q[:, 3:7])
+    names = list(body.body_names[1:]) + list(SITES)
+    ids, local = target_points(body, names)
+    src = forward_points(body, q, ids, local)
+    solved = {}
+    for with_sites in (True, False):
+        mapping = {n: (n if with_sites or n not in SITES else None) for n in names}
+        result = retarget(src, names, 30.0, up="z", fps_out=None, body=body, mapping=mapping, posture=0.0,
+                          level_floor=False)
+        assert result.residual.max() < 2e-3
+        assert len(result.target_bodies) == len(names) - (0 if with_sites else len(SITES))
+        solved[with_sites] = body.angles(result.qpos)[:, hidden]
+    np.testing.assert_allclose(solved[True], angles[:, hidden], atol=5e-3)
+    assert np.abs(solved[False]).max() < 1e-6

@@ -49,6 +49,13 @@ ALIASES: dict[str, tuple[str | None, str | None, str | None]] = {
     "rtoes":       ("rtoes",      "RightToeBase",    "RightToe"),
     "ltoes_tip":   ("ltoes_end",  "LeftToeBase_end", "LeftToe_end"),
     "rtoes_tip":   ("rtoes_end",  "RightToeBase_end", "RightToe_end"),
+    # The BVH conversions hang their hands off the end of ASF's radius (humanoid56's lwrist origin),
+    # 9 cm before the real wrist, so their finger and thumb directions do not match the humanoid's hand
+    # (tried: hand residuals of 2-8 cm and worse arms); their hands stay at the warm start.
+    "lknuckles":   ("lfingers",   None,              None),
+    "rknuckles":   ("rfingers",   None,              None),
+    "lthumb_tip":  ("lthumb_end", None,              None),
+    "rthumb_tip":  ("rthumb_end", None,              None),
 }
 
 #: Source joints each dialect ignores on purpose (besides end sites, ``<joint>_end``), with the reason.
@@ -56,19 +63,20 @@ IGNORED: dict[str, dict[str, str]] = {
     "asf": {
         **{n: "starts at the root" for n in ("lhipjoint", "rhipjoint", "lowerback")},
         **{n: "starts where lowerneck starts" for n in ("lclavicle", "rclavicle")},
-        **{n: "finger or thumb" for n in ("lfingers", "rfingers", "lthumb", "rthumb")},
+        **{n: "starts where the hand starts (its end drives the thumb tip)" for n in ("lthumb", "rthumb")},
     },
     "bvh-motionbuilder": {
         **{n: "zero offset from Hips" for n in ("LHipJoint", "RHipJoint", "LowerBack")},
         **{n: "zero offset from Spine1" for n in ("Neck", "LeftShoulder", "RightShoulder")},
         **{n: "zero offset from the hand" for n in ("LeftFingerBase", "RightFingerBase")},
-        **{n: "finger or thumb" for n in ("LeftHandIndex1", "RightHandIndex1", "LThumb", "RThumb")},
+        **{n: "finger or thumb (see the hand sites above)" for n in ("LeftHandIndex1", "RightHandIndex1", "LThumb",
+                                                                       "RThumb")},
     },
     "bvh-3dsmax": {
         **{n: "zero offset from Hips" for n in ("LHipJoint", "RHipJoint", "lowerback")},
         **{n: "zero offset from Chest2" for n in ("lowerneck", "LeftCollar", "RightCollar")},
         **{n: "zero offset from the wrist" for n in ("lhand", "rhand")},
-        **{n: "finger or thumb" for n in ("LFingers", "RFingers", "LThumb", "RThumb")},
+        **{n: "finger or thumb (see the hand sites above)" for n in ("LFingers", "RFingers", "LThumb", "RThumb")},
     },
 }
 
@@ -80,6 +88,13 @@ END_SITE_SUFFIX = "_end"
 SITES: dict[str, tuple[str, tuple[float, float, float]]] = {
     "ltoes_tip": ("ltoes", (0.08, 0.0, 0.0)),
     "rtoes_tip": ("rtoes", (0.08, 0.0, 0.0)),
+    # On the hand's axis at the knuckles: its direction from the wrist drives hand flexion and deviation.
+    "lknuckles": ("lhand", (0.0, 0.0, -0.1)),
+    "rknuckles": ("rhand", (0.0, 0.0, -0.1)),
+    # The thumb tip, 45 degrees between the hand's axis and forward (palms face the thighs at the zero
+    # pose, like CMU's rest thumbs): the one hand point off the forearm's axis, so it drives the twist.
+    "lthumb_tip": ("lhand", (0.03, 0.0, -0.03)),
+    "rthumb_tip": ("rhand", (0.03, 0.0, -0.03)),
 }
 
 
