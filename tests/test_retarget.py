@@ -165,3 +165,17 @@ def test_sites_drive_toes_wrist_twist_and_hands(body, rng):
         solved[with_sites] = body.angles(result.qpos)[:, hidden]
     np.testing.assert_allclose(solved[True], angles[:, hidden], atol=5e-3)
     assert np.abs(solved[False]).max() < 1e-6
+
+
+def test_ground_height_ignores_a_single_dipping_frame(body):
+    """Standing still (both feet in stance) with soles at 3 cm, one frame sunk to -5 cm: the floor is the
+    stance percentile (3 cm), not the clip's minimum; the zero pose has its soles at pelvis height - 0.95 m."""
+    from harness.motion.retarget import ground_height, stance_foot_heights
+
+    q = np.repeat(body.zero_qpos()[None], 20, axis=0)
+    q[:, 2] = 0.95 + 0.03
+    q[7, 2] = 0.95 - 0.05
+    np.testing.assert_allclose(stance_foot_heights(body, q, 30.0)[:20], np.where(np.arange(20) == 7, -0.05, 0.03),
+                               atol=1e-9)
+    assert ground_height(body, q, 30.0) == pytest.approx(0.03, abs=1e-9)
+    assert ground_height(body, q, 30.0, percentile=0.0) == pytest.approx(-0.05, abs=1e-9)
