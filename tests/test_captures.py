@@ -42,7 +42,7 @@ def test_mapping_files_yaml_and_csv(tmp_path, body):
             resolve_correspondence(["pelvis_j", "tail"], m)
     bad = tmp_path / "bad.yaml"
     bad.write_text("hip: femur_left\n")
-    with pytest.raises(SkeletonMappingError, match="key 'hip': unknown humanoid56 body 'femur_left'"):
+    with pytest.raises(SkeletonMappingError, match="key 'hip': unknown humanoid56 body or site 'femur_left'"):
         load_mapping(bad, body.body_names)
 
 

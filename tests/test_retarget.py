@@ -71,3 +71,111 @@ def test_missing_hips_or_unmapped_joints_are_errors(body):
         retarget(src, ("a", "b", "c"), 30.0, body=body, mapping={"a": "pelvis", "b": None, "c": None})
     with pytest.raises(SkeletonMappingError, match="Tail, Wing"):
         retarget(src, ("Hips", "Tail", "Wing"), 30.0, body=body)
+
+
+def _lateral_signs(points: dict[str, np.ndarray], pairs: list[tuple[str, str]]) -> np.ndarray:
+    """Per frame and pair, the sign of (left - right) . (up x forward): +1 when the pair's first point lies
+    on the anatomical left. ``points[name]`` ``(T, 3)``; up from the pelvis to the head, forward from the
+    ankles to the toe tips (both feet), so the sign depends only on the skeleton's own handedness."""
+    u = points["head"] - points["pelvis"]
+    f = points["ltoe"] + points["rtoe"] - points["lankle"] - points["rankle"]
+    left = np.cross(u, f)
+    return np.stack([np.sign(np.sum((points[a] - points[b]) * left, axis=1)) for a, b in pairs], axis=1)
+
+
+PAIRS = [("lfemur", "rfemur"), ("ltibia", "rtibia"), ("lhumerus", "rhumerus"), ("lwrist", "rwrist")]
+
+
+@pytest.mark.parametrize("name, start, source_names", [
+    ("02_01.amc", 0, dict(zip(["pelvis", "head", "lankle", "rankle", "ltoe", "rtoe", "lfemur", "rfemur", "ltibia",
+                               "rtibia", "lhumerus", "rhumerus", "lwrist", "rwrist"],
+                              ["root", "head", "lfoot", "rfoot", "ltoes_end", "rtoes_end", "lfemur", "rfemur",
+                               "ltibia", "rtibia", "lhumerus", "rhumerus", "lwrist", "rwrist"]))),
+    ("131_02.bvh", 0, dict(zip(["pelvis", "head", "lankle", "rankle", "ltoe", "rtoe", "lfemur", "rfemur", "ltibia",
+                                "rtibia", "lhumerus", "rhumerus", "lwrist", "rwrist"],
+                               ["Hips", "Head", "LeftAnkle", "RightAnkle", "LeftToe_end", "RightToe_end",
+                                "LeftHip", "RightHip", "LeftKnee", "RightKnee", "LeftShoulder", "RightShoulder",
+                                "LeftWrist", "RightWrist"]))),
+    ("09_01.bvh", 1, dict(zip(["pelvis", "head", "lankle", "rankle", "ltoe", "rtoe", "lfemur", "rfemur", "ltibia",
+                               "rtibia", "lhumerus", "rhumerus", "lwrist", "rwrist"],
+                              ["Hips", "Head", "LeftFoot", "RightFoot", "LeftToeBase_end", "RightToeBase_end",
+                               "LeftUpLeg", "RightUpLeg", "LeftLeg", "RightLeg", "LeftArm", "RightArm",
+                               "LeftHand", "RightHand"]))),
+])
+def test_retargeted_captures_are_not_mirrored(name, start, source_names, body):
+    """The source's left joints land on humanoid56's l* bodies, on the humanoid's anatomical left: the
+    side of each left/right pair, from the up x forward of each skeleton in its own coordinates, agrees
+    frame by frame (a mirror would flip every sign)."""
+    from harness.motion.asf_amc import asf_forward_kinematics, joint_names, load_amc, load_asf
+    from harness.motion.bvh import CMU_BVH_UNIT_M, load_bvh
+    from tests.conftest import require_mocap
+
+    directory = require_mocap()
+    if name.endswith(".bvh"):
+        clip = load_bvh(directory / name)
+        src, names, fps, unit = clip.positions(start, start + 90), clip.names, clip.fps, CMU_BVH_UNIT_M
+    else:
+        skeleton = load_asf(directory / "02.asf")
+        src = asf_forward_kinematics(skeleton, load_amc(directory / name, skeleton), start, start + 90)
+        names, fps, unit = joint_names(skeleton), 120.0, skeleton.unit_m
+    result = retarget(src, names, fps, unit_m=unit, up="y", fps_out=30.0, body=body)
+    # Source: its own coordinates (y-up, as captured), none of the retargeting's conversions involved;
+    # 120 fps resampled at 30 fps keeps every 4th frame.
+    src_signs = _lateral_signs({k: src[::4, names.index(v)] for k, v in source_names.items()}, PAIRS)
+    # Humanoid: body origins and toe tips in its base frame.
+    origins = body_origins(body, result.qpos, frame="base")
+    hum = {k: origins[:, body.body_id(k) - 1] for k in ("pelvis", "head", *sum(PAIRS, ()))}
+    hum["lankle"], hum["rankle"] = origins[:, body.body_id("lfoot") - 1], origins[:, body.body_id("rfoot") - 1]
+    hum["ltoe"], hum["rtoe"] = forward_points(body, result.qpos, [body.body_id("ltoes"), body.body_id("rtoes")],
+                                              [[0.08, 0.0, 0.0]] * 2, frame="base").transpose(1, 0, 2)
+    hum_signs = _lateral_signs(hum, PAIRS)
+    assert len(src_signs) == len(hum_signs) == 23
+    np.testing.assert_array_equal(hum_signs, src_signs)
+    # Walking and running keep each left joint on the left in most frames (a real, non-trivial check).
+    assert np.all(np.mean(src_signs == 1.0, axis=0) > 0.9)
+    # And humanoid56's convention: its base y axis points to its left.
+    for a, b in PAIRS:
+        assert np.mean(origins[:, body.body_id(a) - 1, 1] > origins[:, body.body_id(b) - 1, 1]) > 0.9
+
+
+def test_sites_drive_toes_wrist_twist_and_hands(body, rng):
+    """With the toe tips, knuckles and thumb tips as targets, the angles no joint centre can see (toes,
+    wrist twist, hand flexion and deviation) are recovered; with joint centres alone they stay at zero."""
+    from harness.motion.skeletons import SITES
+    from harness.motion.retarget import target_points
+
+    # Two frames of one pose (a second, different pose would test the warm start, not the sites).
+    q = np.repeat(_pose(body, rng, 1), 2, axis=0)
+    q[:, 7:16] = 0.0                       # straight spine, as in the exact-retarget test above
+    hidden = [body.angle_index(n) for n in ("ltoes_y", "rtoes_y", "lwrist_z", "rwrist_z", "lhand_y", "lhand_x",
+                                            "rhand_y", "rhand_x")]
+    angles = body.angles(q)
+    angles[:, hidden] = rng.uniform(-0.4, 0.4, len(hidden))
+    q = body.qpos(angles, q[:, :3], q[:, 3:7])
+    names = list(body.body_names[1:]) + list(SITES)
+    ids, local = target_points(body, names)
+    src = forward_points(body, q, ids, local)
+    solved = {}
+    for with_sites in (True, False):
+        mapping = {n: (n if with_sites or n not in SITES else None) for n in names}
+        result = retarget(src, names, 30.0, up="z", fps_out=None, body=body, mapping=mapping, posture=0.0,
+                          level_floor=False)
+        assert result.residual.max() < 2e-3
+        assert len(result.target_bodies) == len(names) - (0 if with_sites else len(SITES))
+        solved[with_sites] = body.angles(result.qpos)[:, hidden]
+    np.testing.assert_allclose(solved[True], angles[:, hidden], atol=5e-3)
+    assert np.abs(solved[False]).max() < 1e-6
+
+
+def test_ground_height_ignores_a_single_dipping_frame(body):
+    """Standing still (both feet in stance) with soles at 3 cm, one frame sunk to -5 cm: the floor is the
+    stance percentile (3 cm), not the clip's minimum; the zero pose has its soles at pelvis height - 0.95 m."""
+    from harness.motion.retarget import ground_height, stance_foot_heights
+
+    q = np.repeat(body.zero_qpos()[None], 20, axis=0)
+    q[:, 2] = 0.95 + 0.03
+    q[7, 2] = 0.95 - 0.05
+    np.testing.assert_allclose(stance_foot_heights(body, q, 30.0)[:20], np.where(np.arange(20) == 7, -0.05, 0.03),
+                               atol=1e-9)
+    assert ground_height(body, q, 30.0) == pytest.approx(0.03, abs=1e-9)
+    assert ground_height(body, q, 30.0, percentile=0.0) == pytest.approx(-0.05, abs=1e-9)

@@ -9,7 +9,9 @@ Steps (``retarget``):
 3. **Targets with humanoid proportions.** Each mapped humanoid body ``b`` follows its source joint
    through the direction from its nearest mapped ancestor ``a``:
    ``target_b = target_a + L_ab * unit(src_b - src_a)`` with ``L_ab`` the humanoid's own distance between
-   the two joint centres. Source and humanoid proportions differ (CMU's spine and neck split the trunk
+   the two joint centres (at the zero pose). A site (a body-fixed point, ``skeletons.SITES``) does the
+   same from its own body's origin, or that body's nearest mapped ancestor: the toe tips so drive the
+   toe joints, which no joint centre below them could. Source and humanoid proportions differ (CMU's spine and neck split the trunk
    differently from humanoid56), so matching raw positions would leave centimetres of error that no pose
    can remove; matching directions keeps the pose and lets the humanoid's bone lengths stand. The hips
    are placed rigidly on the pelvis (``target_pelvis + R_base offset``), because the source's hip-joint
@@ -24,9 +26,12 @@ Steps (``retarget``):
    centimetres over three metres); with ``level_floor`` the plane through the stance feet
    (``z = a x + b y + c``, fitted when the stance points span at least ``LEVEL_MIN_SPAN`` m) is removed
    by moving the base down by ``a x + b y`` at its position. Then the clip is shifted vertically so
-   that the lowest point of the feet over the clip is at z = 0.
+   that the floor is at z = 0, the floor being the ``GROUND_PERCENTILE``-th percentile of the lowest
+   point of each foot over the frames where that foot is in stance (``ground_height``). A percentile
+   rather than the clip's minimum: one frame where a toe box dips (a toe-off the source's toe bone does
+   not quite follow, a heel strike) would otherwise lift every stance frame off the floor.
 
-The residual reported is the distance between each target and the body origin that follows it, metres,
+The residual reported is the distance between each target and the body point that follows it, metres,
 in humanoid scale (the "scale-normalised" residual).
 """
 
@@ -39,7 +44,7 @@ import numpy as np
 from harness import geometry
 from harness.body import BodyModel, forward_points_and_jacobians, geom_z_range
 from harness.errors import HarnessError
-from harness.motion.skeletons import resolve_correspondence
+from harness.motion.skeletons import SITES, resolve_correspondence
 
 #: Damping of the least-squares steps (metres): small enough to converge to sub-millimetre residuals,
 #: large enough to keep unobservable DOFs (wrist twist, toes) at their warm start.
@@ -51,7 +56,6 @@ DEFAULT_POSTURE = 0.02
 DEFAULT_ITERATIONS = 12
 FIRST_FRAME_ITERATIONS = 150
 STEP_TOLERANCE = 1e-6
-FOOT_BODIES = ("lfoot", "ltoes", "rfoot", "rtoes")
 REQUIRED_BODIES = ("pelvis", "lfemur", "rfemur")
 HEIGHT_CHAIN = ("lfoot", "ltibia", "lfemur", "pelvis", "lowerback", "upperback", "thorax", "lowerneck", "upperneck", "head")
 
@@ -63,7 +67,7 @@ class RetargetError(HarnessError):
 @dataclass(frozen=True)
 class RetargetResult:
     """qpos ``(T, 57)`` at ``fps``; targets ``(T, K, 3)`` metres (world, grounded like qpos) for
-    ``target_bodies`` ``(K,)`` humanoid body names; residual ``(T, K)`` metres; scale: the height scale ``s``
+    ``target_bodies`` ``(K,)`` humanoid body or site names; residual ``(T, K)`` metres; scale: the height scale ``s``
     (humanoid per source metre); source_positions ``(T, J, 3)``: the source joints in metres, z-up,
     resampled, scaled by ``s`` and shifted like the targets (for drawing)."""
 
@@ -108,6 +112,17 @@ def _zero_origins(body: BodyModel) -> np.ndarray:
     return np.vstack([np.zeros((1, 3)), body_origins(body, body.zero_qpos(), frame="base")])
 
 
+def target_points(body: BodyModel, names: list[str] | tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Humanoid target names (bodies or ``SITES``) -> body ids ``(K,)`` and points in those bodies' frames
+    ``(K, 3)`` metres (zero for a body: its origin)."""
+    ids, local = [], []
+    for name in names:
+        bname, point = SITES[name] if name in SITES else (name, (0.0, 0.0, 0.0))
+        ids.append(body.body_id(bname))
+        local.append(point)
+    return np.array(ids, dtype=int), np.array(local, dtype=float).reshape(-1, 3)
+
+
 def height_scale(body: BodyModel, src: np.ndarray, bodies: list[int]) -> float:
     """Humanoid over source length of the ankle-to-head chain through the mapped bodies (mean over frames).
 
@@ -133,13 +148,20 @@ def base_frames(pelvis: np.ndarray, left_hip: np.ndarray, right_hip: np.ndarray,
     return geometry.from_matrix(np.stack([x, y, z], axis=-1))
 
 
-def proportional_targets(body: BodyModel, src: np.ndarray, bodies: list[int], scale: float) -> np.ndarray:
+def proportional_targets(body: BodyModel, src: np.ndarray, bodies: list[int], scale: float,
+                         local: np.ndarray | None = None) -> np.ndarray:
     """Targets ``(T, K, 3)`` with humanoid bone lengths and the source's directions (module docstring, step 3).
 
-    ``src`` ``(T, K, 3)`` metres z-up for body ids ``bodies`` (must include pelvis, lfemur, rfemur)."""
+    ``src`` ``(T, K, 3)`` metres z-up for the points ``(bodies[k], local[k])`` (body ids and points in
+    their frames, ``local`` ``(K, 3)`` defaulting to the origins; a non-zero point is a site); the
+    origins of pelvis, lfemur and rfemur must be among them."""
     origins = _zero_origins(body)
-    mapped = set(bodies)
-    k_of = {b: k for k, b in enumerate(bodies)}
+    local = np.zeros((len(bodies), 3)) if local is None else np.asarray(local, dtype=float)
+    is_site = np.any(local != 0.0, axis=1)
+    # At the zero pose every body frame is parallel to the world, so a point sits at origin + local.
+    rest = origins[bodies] + local
+    mapped = {b for b, site in zip(bodies, is_site) if not site}
+    k_of = {b: k for k, (b, site) in enumerate(zip(bodies, is_site)) if not site}
     pelvis, lhip, rhip = (body.body_id(n) for n in REQUIRED_BODIES)
     spine = next((body.body_id(n) for n in ("thorax", "upperback", "lowerneck") if body.body_id(n) in mapped), None)
     if spine is None:
@@ -147,15 +169,19 @@ def proportional_targets(body: BodyModel, src: np.ndarray, bodies: list[int], sc
     out = np.empty_like(src)
     out[:, k_of[pelvis]] = scale * src[:, k_of[pelvis]]
     quat = base_frames(src[:, k_of[pelvis]], src[:, k_of[lhip]], src[:, k_of[rhip]], src[:, k_of[spine]])
-    # Parents before children: body ids in MuJoCo are in tree order.
-    for b in sorted(mapped - {pelvis}):
-        a = _mapped_ancestor(body, b, mapped)
-        if a == pelvis and int(body.model.body_parentid[b]) == pelvis:
-            out[:, k_of[b]] = out[:, k_of[a]] + geometry.rotate(quat, origins[b] - origins[pelvis])
+    # Parents before children: body ids in MuJoCo are in tree order; sites hang off finished origins.
+    order = sorted(range(len(bodies)), key=lambda k: (bool(is_site[k]), bodies[k]))
+    for k in order:
+        b = bodies[k]
+        if b == pelvis and not is_site[k]:
             continue
-        d = src[:, k_of[b]] - src[:, k_of[a]]
+        a = b if is_site[k] and b in mapped else _mapped_ancestor(body, b, mapped)
+        if a == pelvis and not is_site[k] and int(body.model.body_parentid[b]) == pelvis:
+            out[:, k] = out[:, k_of[a]] + geometry.rotate(quat, rest[k] - origins[pelvis])
+            continue
+        d = src[:, k] - src[:, k_of[a]]
         d /= np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-9)
-        out[:, k_of[b]] = out[:, k_of[a]] + np.linalg.norm(origins[b] - origins[a]) * d
+        out[:, k] = out[:, k_of[a]] + np.linalg.norm(rest[k] - origins[a]) * d
     return out
 
 
@@ -167,10 +193,12 @@ def _skew_columns(r: np.ndarray) -> np.ndarray:
 def solve_ik(body: BodyModel, targets: np.ndarray, target_bodies: np.ndarray, init: np.ndarray,
              damping: float = DEFAULT_DAMPING, iterations: int = DEFAULT_ITERATIONS,
              first_iterations: int = FIRST_FRAME_ITERATIONS, weights: np.ndarray | None = None,
-             posture: float = DEFAULT_POSTURE) -> tuple[np.ndarray, np.ndarray]:
-    """Damped least squares IK of body origins onto ``targets (T, K, 3)`` (metres, world).
+             posture: float = DEFAULT_POSTURE, target_local: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Damped least squares IK of body-fixed points onto ``targets (T, K, 3)`` (metres, world).
 
-    ``target_bodies`` ``(K,)`` body ids; ``init`` ``(57,)`` the start of the first frame; every later frame
+    ``target_bodies`` ``(K,)`` body ids, ``target_local`` ``(K, 3)`` the points in those bodies' frames
+    (metres; default: the body origins); ``init`` ``(57,)`` the start of the first frame; every later frame
     starts from the previous solution. Each step minimises
     ``|J dq - r|^2 + damping^2 |dq|^2 + posture^2 |theta + dtheta|^2`` (the last term pulls the angles
     towards the zero pose so that redundant combinations stay put). Unknowns: base position, base orientation (world-frame rotation
@@ -181,7 +209,7 @@ def solve_ik(body: BodyModel, targets: np.ndarray, target_bodies: np.ndarray, in
     target_bodies = np.asarray(target_bodies, dtype=int)
     w = np.ones(len(target_bodies)) if weights is None else np.asarray(weights, dtype=float)
     w3 = np.repeat(w, 3)
-    zeros = np.zeros((len(target_bodies), 3))
+    local = np.zeros((len(target_bodies), 3)) if target_local is None else np.asarray(target_local, dtype=float)
     q = np.array(init, dtype=float)
     qpos = np.empty((len(targets), 57))
     residual = np.empty(targets.shape[:2])
@@ -189,7 +217,7 @@ def solve_ik(body: BodyModel, targets: np.ndarray, target_bodies: np.ndarray, in
     reg[6:, 6:] += posture ** 2 * np.eye(56 - 6)
     for t, goal in enumerate(targets):
         for _ in range(first_iterations if t == 0 else iterations):
-            pos, jac = forward_points_and_jacobians(body, q, target_bodies, zeros, frame="world")
+            pos, jac = forward_points_and_jacobians(body, q, target_bodies, local, frame="world")
             r = (goal - pos).ravel() * w3
             full = np.concatenate([np.broadcast_to(np.eye(3), (len(pos), 3, 3)), _skew_columns(pos - q[:3]), jac],
                                   axis=2).reshape(-1, 56) * w3[:, None]
@@ -201,15 +229,42 @@ def solve_ik(body: BodyModel, targets: np.ndarray, target_bodies: np.ndarray, in
             q[body.angle_qpos_index] = body.clip_angles(q[body.angle_qpos_index] + step[6:])
             if np.max(np.abs(step)) < STEP_TOLERANCE:
                 break
-        pos = forward_points_and_jacobians(body, q, target_bodies, zeros, frame="world")[0]
+        pos = forward_points_and_jacobians(body, q, target_bodies, local, frame="world")[0]
         qpos[t], residual[t] = q, np.linalg.norm(goal - pos, axis=1)
     return qpos, residual
 
 
-def ground_offset(body: BodyModel, qpos: np.ndarray) -> float:
-    """Height (m) of the lowest point of the feet and toes over a clip ``(T, 57)``."""
-    geoms = np.flatnonzero(np.isin(body.model.geom_bodyid, [body.body_id(n) for n in FOOT_BODIES]))
-    return float(geom_z_range(body, qpos, geoms)[:, :, 0].min())
+#: A foot whose ankle moves slower than this (m/s, horizontally) is taken to be in stance.
+STANCE_SPEED = 0.25
+#: Percentile (of the lowest point of each stance foot over a clip) that is put at z = 0.
+GROUND_PERCENTILE = 10.0
+
+
+def foot_lows(body: BodyModel, qpos: np.ndarray, fps: float, speed: float = STANCE_SPEED
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame and foot (left, right): the lowest point of the foot and toes geoms ``(T, 2)`` (m, world
+    z), the ankle position ``(T, 2, 3)`` (m, world) and the stance mask ``(T, 2)`` (ankle moving
+    horizontally slower than ``speed`` m/s)."""
+    from harness.body import body_origins
+
+    qpos = np.asarray(qpos, dtype=float)
+    origins = body_origins(body, qpos)
+    low = np.empty((len(qpos), 2))
+    ankle = np.empty((len(qpos), 2, 3))
+    for i, side in enumerate(("l", "r")):
+        ankle[:, i] = origins[:, body.body_id(f"{side}foot") - 1]
+        geoms = np.flatnonzero(np.isin(body.model.geom_bodyid, [body.body_id(f"{side}foot"),
+                                                                 body.body_id(f"{side}toes")]))
+        low[:, i] = geom_z_range(body, qpos, geoms)[:, :, 0].min(axis=1)
+    v = np.linalg.norm(np.gradient(ankle[:, :, :2], 1.0 / fps, axis=0), axis=2)
+    return low, ankle, v < speed
+
+
+def ground_height(body: BodyModel, qpos: np.ndarray, fps: float, percentile: float = GROUND_PERCENTILE) -> float:
+    """Height (m) of the floor under a clip ``(T, 57)``: the ``percentile`` of the lowest point of each
+    foot over the (frame, foot) pairs in stance (over all pairs if none is in stance)."""
+    low, _, stance = foot_lows(body, qpos, fps)
+    return float(np.percentile(low[stance] if stance.any() else low, percentile))
 
 
 def retarget(positions: np.ndarray, joint_names: tuple[str, ...] | list[str], fps: float, *,
@@ -236,52 +291,42 @@ def retarget(positions: np.ndarray, joint_names: tuple[str, ...] | list[str], fp
     if fps_out is not None and fps_out != fps:
         positions = resample_positions(positions, fps, fps_out)
     fps_final = float(fps_out or fps)
-    pairs = sorted((body.body_id(b), list(joint_names).index(j)) for j, b in correspondence.items())
-    bodies = [b for b, _ in pairs]
-    src = positions[:, [j for _, j in pairs]]
-    scale = height_scale(body, src, bodies)
-    targets = proportional_targets(body, src, bodies, scale)
+    # Body origins in tree order, then sites (in SITES order).
+    names = sorted(correspondence.values(),
+                   key=lambda n: (n in SITES, list(SITES).index(n) if n in SITES else body.body_id(n)))
+    joint_of = {b: j for j, b in correspondence.items()}
+    src = positions[:, [list(joint_names).index(joint_of[n]) for n in names]]
+    ids, local = target_points(body, names)
+    bodies = [int(b) for b in ids]
+    origin_k = [k for k, n in enumerate(names) if n not in SITES]
+    scale = height_scale(body, src[:, origin_k], [bodies[k] for k in origin_k])
+    targets = proportional_targets(body, src, bodies, scale, local)
     k_pelvis = bodies.index(body.body_id("pelvis"))
     init = body.zero_qpos()
     init[:3] = targets[0, k_pelvis]
     spine = next(n for n in ("thorax", "upperback", "lowerneck") if body.body_id(n) in bodies)
     init[3:7] = base_frames(*(src[0, bodies.index(body.body_id(n))] for n in ("pelvis", "lfemur", "rfemur", spine)))
-    qpos, residual = solve_ik(body, targets, np.array(bodies), init, damping=damping, iterations=iterations,
-                                 posture=posture)
+    qpos, residual = solve_ik(body, targets, ids, init, damping=damping, iterations=iterations,
+                              posture=posture, target_local=local)
     tilt = floor_tilt(body, qpos, fps_final) if level_floor else np.zeros(len(qpos))
     qpos[:, 2] -= tilt
     targets[:, :, 2] -= tilt[:, None]
-    dz = ground_offset(body, qpos)
+    dz = ground_height(body, qpos, fps_final)
     qpos[:, 2] -= dz
     targets[:, :, 2] -= dz
     # The raw source skeleton at humanoid scale, moved with the targets (its root on the pelvis target).
     shown = positions * scale
     shown += (targets[:, k_pelvis] - scale * src[:, k_pelvis])[:, None]
     return RetargetResult(qpos=qpos, fps=fps_final, targets=targets,
-                          target_bodies=tuple(body.body_names[b] for b in bodies), residual=residual,
+                          target_bodies=tuple(names), residual=residual,
                           scale=scale, source_positions=shown)
-
-
-#: A foot whose origin moves slower than this (m/s, horizontally) is taken to be in stance.
-STANCE_SPEED = 0.25
 
 
 def stance_foot_heights(body: BodyModel, qpos: np.ndarray, fps: float, speed: float = STANCE_SPEED) -> np.ndarray:
     """Lowest point (m, world z) of each foot (foot and toes geoms) on the frames where that foot's ankle
     moves horizontally slower than ``speed`` m/s: a 1-D array over (frame, foot) pairs in stance."""
-    from harness.body import body_origins
-
-    qpos = np.asarray(qpos, dtype=float)
-    origins = body_origins(body, qpos)
-    heights = []
-    for side in ("l", "r"):
-        ankle = origins[:, body.body_id(f"{side}foot") - 1, :2]
-        v = np.linalg.norm(np.gradient(ankle, 1.0 / fps, axis=0), axis=1)
-        geoms = np.flatnonzero(np.isin(body.model.geom_bodyid, [body.body_id(f"{side}foot"),
-                                                                 body.body_id(f"{side}toes")]))
-        low = geom_z_range(body, qpos, geoms)[:, :, 0].min(axis=1)
-        heights.append(low[v < speed])
-    return np.concatenate(heights)
+    low, _, stance = foot_lows(body, qpos, fps, speed)
+    return np.concatenate([low[stance[:, 0], 0], low[stance[:, 1], 1]])
 
 
 #: Least horizontal extent (m) of the stance points before a floor slope is fitted: in-place motions
@@ -293,21 +338,9 @@ def floor_tilt(body: BodyModel, qpos: np.ndarray, fps: float, speed: float = STA
     """Height (m) of the captured floor's slope under the base, ``(T,)``: ``a x_t + b y_t`` with ``a, b`` the
     least-squares plane through the lowest points of the feet in stance (zeros if the stance points span
     less than ``LEVEL_MIN_SPAN`` m)."""
-    from harness.body import body_origins
-
-    qpos = np.asarray(qpos, dtype=float)
-    origins = body_origins(body, qpos)
-    points = []
-    for side in ("l", "r"):
-        ankle = origins[:, body.body_id(f"{side}foot") - 1]
-        v = np.linalg.norm(np.gradient(ankle[:, :2], 1.0 / fps, axis=0), axis=1)
-        geoms = np.flatnonzero(np.isin(body.model.geom_bodyid, [body.body_id(f"{side}foot"),
-                                                                 body.body_id(f"{side}toes")]))
-        low = geom_z_range(body, qpos, geoms)[:, :, 0].min(axis=1)
-        stance = v < speed
-        points.append(np.column_stack([ankle[stance, :2], low[stance]]))
-    pts = np.concatenate(points)
+    low, ankle, stance = foot_lows(body, qpos, fps, speed)
+    pts = np.column_stack([ankle[stance][:, :2], low[stance]])
     if len(pts) < 3 or np.ptp(pts[:, :2], axis=0).max() < LEVEL_MIN_SPAN:
         return np.zeros(len(qpos))
     coef = np.linalg.lstsq(np.column_stack([pts[:, :2], np.ones(len(pts))]), pts[:, 2], rcond=None)[0]
-    return qpos[:, :2] @ coef[:2]
+    return np.asarray(qpos, dtype=float)[:, :2] @ coef[:2]
