@@ -62,7 +62,7 @@ def _by_class(motions: list[Motion], label: str) -> list[Motion]:
 
 def test_motion(run: RunSpec) -> Motion:
     cfg = run.config
-    if cfg.database.source == "capture":
+    if cfg.database.source == "capture" or cfg.test.split == "captures":
         demos = _by_class(_capture_set(cfg), run.test_class)
         if run.test_demo >= len(demos):
             raise RunError(f"run {run.key}: class {run.test_class!r} has {len(demos)} capture demos")

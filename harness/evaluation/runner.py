@@ -95,12 +95,24 @@ def motions_under_test(config: Scenario) -> list[tuple[str, int]]:
     """``(class, demo index)`` of every test motion: held-out procedural demos, or every manifest demo of the
     listed classes (the pipeline trains each capture split's database without the runs it tests)."""
     db = config.database
-    if db.source == "procedural":
+    if db.source == "procedural" and config.test.split == "heldout":
         return [(c, db.train_demos + i) for c in config.classes for i in range(config.test.demos_per_class)]
+    if config.test.split == "captures" and db.capture_dir is not None:
+        rows = read_manifest(Path(db.capture_dir) / db.manifest)
+        present = [c for c in config.classes if any(r["class"] == c for r in rows)]
+        return [(c, i) for c in present for i in range(sum(r["class"] == c for r in rows))]
     if db.capture_dir is None or db.classes is None:
         raise RunError(f"{config.name}: capture scenario not resolved (call scenario.resolve_capture first)")
     rows = read_manifest(Path(db.capture_dir) / db.manifest)
-    return [(c, i) for c in db.classes for i in range(sum(r["class"] == c for r in rows))]
+    out = []
+    for c in db.classes:
+        mine = [r for r in rows if r["class"] == c]
+        for i, row in enumerate(mine):
+            # Cross-subject: a demo is testable only if another subject performed its class.
+            if config.test.split == "cross_subject" and all(r["subject"] == row["subject"] for r in mine):
+                continue
+            out.append((c, i))
+    return out
 
 
 def plan(scenario: Scenario, cache_dir: str | Path) -> list[RunSpec]:

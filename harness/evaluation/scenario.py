@@ -73,14 +73,15 @@ class DatabaseConfig(_Section):
 
 
 class SplitConfig(_Section):
-    """Which motions are tested: held-out procedural demos, or a split of the capture set."""
+    """Which motions are tested: held-out procedural demos, a split of the capture set, or (``captures``) every
+    capture demonstration against a procedural database (sim-to-real)."""
 
     demos_per_class: int = Field(2, ge=1)  # procedural: held-out demos per class
-    split: Literal["heldout", "leave_one_out", "cross_subject", "all"] = "heldout"
+    split: Literal["heldout", "captures", "leave_one_out", "cross_subject", "all"] = "heldout"
 
 
 class MarkersConfig(_Section):
-    count: int = Field(40, ge=1)           # random surface sites on the body
+    count: int = Field(100, ge=1)          # random surface sites on the body
     seed: int | None = None                # None: drawn from the run's seed (new placement every run)
 
 
@@ -104,7 +105,7 @@ class OccludersConfig(_Section):
 
 class ObservationConfig(_Section):
     mode: Literal["geometric", "rendered"] = "geometric"
-    noise_px: float = Field(0.5, ge=0.0)                # std of pixel noise on positions, pixels
+    noise_px: float = Field(1.0, ge=0.0)                # std of pixel noise on positions, pixels
     dropout: float = Field(0.0, ge=0.0, lt=1.0)         # probability a visible flow is dropped
     outliers: float = Field(0.0, ge=0.0, lt=1.0)        # fraction of flows replaced by random outliers
 
@@ -142,8 +143,8 @@ class Scenario(_Section):
     @model_validator(mode="after")
     def _check_split(self):
         procedural = self.database.source == "procedural"
-        if procedural != (self.test.split == "heldout"):
-            valid = "heldout" if procedural else "leave_one_out, cross_subject, all"
+        if procedural != (self.test.split in ("heldout", "captures")):
+            valid = "heldout, captures" if procedural else "leave_one_out, cross_subject, all"
             raise ValueError(f"test.split: {self.test.split!r} does not fit database.source "
                              f"{self.database.source!r} (valid: {valid})")
         if not self.methods:
@@ -350,12 +351,22 @@ def read_manifest(path: Path) -> list[dict[str, str]]:
 
 
 def resolve_capture(scenario: Scenario, mocap_dir: str | Path | None = None) -> Scenario:
-    """Fix a capture scenario's directory and classes (default: the manifest's), checking listed classes."""
-    if scenario.database.source != "capture":
+    """Fix a capture scenario's directory and classes (default: the manifest's), checking listed classes.
+
+    A procedural database tested on captures (``test.split: captures``) keeps its classes; every manifest
+    class must be one of them."""
+    if scenario.database.source != "capture" and scenario.test.split != "captures":
         return scenario
     root = resolve_mocap_dir(scenario, mocap_dir)
     rows = read_manifest(root / scenario.database.manifest)
     present = sorted({r["class"] for r in rows})
+    if scenario.database.source == "procedural":
+        for c in present:
+            if c not in scenario.classes:
+                raise ScenarioError(f"{scenario.name}: database.classes: the capture class {c!r} is not in the "
+                                    f"database (classes: {', '.join(scenario.classes)})")
+        db = scenario.database.model_copy(update={"capture_dir": str(root)})
+        return scenario.model_copy(update={"database": db})
     classes = scenario.database.classes or tuple(present)
     for i, c in enumerate(classes):
         if c not in present:
