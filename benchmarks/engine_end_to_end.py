@@ -46,7 +46,7 @@ def main() -> None:
              (demonstrations(c, 1, train_rng, subject=int(s))[0] for s in range(args.train))]
     db = MotionDatabase(n_states=args.states, cyclic=CYCLIC).fit(train)
     print(f"database: {len(train)} demos, {time.perf_counter() - t0:.1f} s")
-    tracker = Tracker(db, body, TrackerConfig(particles=args.particles, **{k: float(v) for k, v in (a.split('=') for a in args.set)}), rng=np.random.default_rng(args.eval_seed))
+    tracker = Tracker(db, body, TrackerConfig(particles=args.particles, **{k: (int(v) if v.isdigit() else float(v)) for k, v in (a.split('=') for a in args.set)}), rng=np.random.default_rng(args.eval_seed))
 
     rng = np.random.default_rng(args.eval_seed)
     rows = []

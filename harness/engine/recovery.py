@@ -27,15 +27,19 @@ from harness.pinhole import Intrinsics, project, projection_jacobian
 def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows: np.ndarray, resp: np.ndarray,
                 angles0: np.ndarray, angle_std: np.ndarray, position0: np.ndarray, rot0: np.ndarray,
                 position_std: np.ndarray, rotation_std: float, noise_px: float, spread: float,
-                iterations: int = 3, damping: float = 1e-3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                iterations: int = 3, damping: float = 1e-3, start: tuple | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Refine angles ``(50,)`` and the base pose (camera frame) to the observed flow positions.
 
-    ``resp`` ``(M, P)``: soft assignment of the ``M`` flows to the ``P`` model points. Returns
-    ``(angles, position (3,), rotation (3, 3))``; with no flows it returns the prior means.
+    ``resp`` ``(M, P)``: soft assignment of the ``M`` flows to the ``P`` model points. The prior is centred
+    on ``angles0``, ``position0``, ``rot0``; the steps start from ``start`` (angles, position, rotation) when
+    given, else from the prior. Returns ``(angles, position (3,), rotation (3, 3))``; with no flows, the start.
     """
-    angles = np.clip(np.asarray(angles0, dtype=float), body.lower, body.upper)
-    pos = np.asarray(position0, dtype=float).copy()
-    rot = np.asarray(rot0, dtype=float).copy()
+    if start is None:
+        start = (angles0, position0, rot0)
+    angles = np.clip(np.asarray(start[0], dtype=float), body.lower, body.upper)
+    pos = np.asarray(start[1], dtype=float).copy()
+    rot = np.asarray(start[2], dtype=float).copy()
     flows = np.asarray(flows, dtype=float).reshape(-1, 4)
     mass = resp.sum(axis=0)                                          # (P,)
     used = mass > 1e-3

@@ -25,12 +25,12 @@ from harness.body.kinematics import geom_z_range
 from harness.body.model import BodyModel
 from harness.body.surface import sample_surface
 from harness.engine.database import MotionDatabase
-from harness.engine.features import ANGLES
+from harness.engine.features import ANGLE_RATES, ANGLES
 from harness.engine.likelihood import flow_log_likelihoods, responsibilities, tempered
 from harness.engine.particle_filter import ParticleFilter
 from harness.engine.recognition import Recognizer
 from harness.engine.recovery import refine_pose
-from harness.engine.transform import database_point_distributions, patch_std, to_image
+from harness.engine.transform import database_point_distributions, patch_std, state_point_distributions, to_image
 from harness.errors import EngineError
 from harness.observation import Observation
 from harness.pinhole import Intrinsics
@@ -54,7 +54,8 @@ class TrackerConfig:
     ess_fraction: float = 0.5
     position_noise: float = 0.15             # m / sqrt(s)
     rotation_noise: float = 0.3              # rad / sqrt(s)
-    refine_iterations: int = 3
+    refine_iterations: int = 2              # Gauss-Newton steps per M-step
+    em_iterations: int = 3                  # re-assignments of flows to model points during recovery
     inject_fraction: float = 0.1
     jump_fraction: float = 0.06              # particles re-seeded each frame at mirrored headings
 
@@ -191,17 +192,30 @@ class Tracker:
         gamma = self.recognizer.state_posterior[best]
         idx = best * K + np.arange(K)
         theta0 = gamma @ self._state_angles[idx]
+        mix_rates = gamma @ self.db.means_[best][:, ANGLE_RATES]
+        mix_rate_var = gamma @ (self.db.covars_[best][:, ANGLE_RATES]
+                                + (self.db.means_[best][:, ANGLE_RATES] - mix_rates) ** 2)
         var = gamma @ (self._state_angle_var[idx] + (self._state_angles[idx] - theta0) ** 2)
         angles, pos_r, rot_r = theta0, pos, rot
         if len(flows):
-            mix = self.dists.take(idx).mixture(gamma)
-            img = to_image(self.intr, rot[None], pos[None], mix, camera_motion)
-            resp = responsibilities(flows, img, cfg.noise_px, self.fps, W, H, cfg.outlier_prob)
-            spread = np.sqrt(np.average((self.filter.positions - pos) ** 2, axis=0, weights=self.filter.weights))
+            f = self.filter
+            spread = np.sqrt(np.average((f.positions - pos) ** 2, axis=0, weights=f.weights))
             spread = np.maximum(spread, 0.02)
-            angles, pos_r, rot_r = refine_pose(self.body, self.points, self.intr, flows, resp, theta0,
-                                               np.sqrt(var), pos, rot, spread, 0.3, cfg.noise_px, self.spread,
-                                               cfg.refine_iterations)
+            mix = self.dists.take(idx).mixture(gamma)
+            pos_r, rot_r = pos, rot
+            for it in range(cfg.em_iterations):
+                # E-step: soft assignment of flows to model points, first under the state belief, then at
+                # the current estimate (whose points only spread over their surface patch).
+                if it:
+                    mix = state_point_distributions(
+                        self.body, angles, np.zeros(50), mix_rates, mix_rate_var, mix.base_linear[0],
+                        np.zeros(3), mix.base_angular[0], np.zeros(3), self.points, self.spread)
+                img = to_image(self.intr, rot_r[None], pos_r[None], mix, camera_motion)
+                resp = responsibilities(flows, img, cfg.noise_px, self.fps, W, H, cfg.outlier_prob)
+                # M-step: Gauss-Newton on angles and pose under the HMM prior and the filter's spread.
+                angles, pos_r, rot_r = refine_pose(self.body, self.points, self.intr, flows, resp, theta0,
+                                                   np.sqrt(var), pos, rot, spread, 0.3, cfg.noise_px,
+                                                   self.spread, cfg.refine_iterations, start=(angles, pos_r, rot_r))
             if pose is None:
                 self.filter.inject(pos_r, geometry.from_matrix(rot_r), cfg.inject_fraction, 0.5 * spread, 0.05)
                 self.filter.inject_jumps(cfg.jump_fraction)
