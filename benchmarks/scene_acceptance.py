@@ -84,7 +84,7 @@ def main() -> int:
             e, nv = projection_errors(setup, motion.qpos)
             errs.append(e)
             n_dots, n_vis = n_dots + len(e), n_vis + nv
-            depth_vis = rendered.depth_visible(setup, motion.qpos, tolerance=0.01, scale=2)
+            depth_vis = rendered.depth_visible(setup, motion.qpos)
             inside = setup.visibility != OUTSIDE
             agree.append((depth_vis == (setup.visibility == VISIBLE))[inside])
     e = np.concatenate(errs)

@@ -32,7 +32,7 @@ def test_detected_dots_sit_on_projected_markers(body, walk):
 def test_depth_buffer_agrees_with_ray_casting(body, walk):
     setup = build_setup(walk, SceneSpec(camera=CameraSpec(azimuth=120.0),
                                         occluders=OccluderSpec("low_wall", 0.3)), body)
-    depth_vis = rendered.depth_visible(setup, walk.qpos, tolerance=0.01, scale=2)
+    depth_vis = rendered.depth_visible(setup, walk.qpos)
     inside = setup.visibility != OUTSIDE
     agree = (depth_vis == (setup.visibility == VISIBLE))[inside]
     assert agree.mean() > 0.93
