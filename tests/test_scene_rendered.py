@@ -55,7 +55,7 @@ def test_rendered_flows_agree_with_geometric_flows(body, walk):
         _, gi, ri = np.intersect1d(gi_ids, ri_ids, return_indices=True)
         errors.append(np.linalg.norm(obs_g.flows[t][gi, 2:] - obs_r.flows[t][ri, 2:], axis=1) / walk.fps)
     e = np.concatenate(errors)
-    assert len(e) >= 0.8 * total
+    assert len(e) >= 0.88 * total            # 92.5 % here; merged dot pairs and fast limbs lose the rest
     assert np.median(e) <= 0.5
 
 
