@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from scene_motions import walk_motion
 
+from harness.pinhole import Intrinsics, project
 from harness.scene import rendered
 from harness.scene.simulate import build_setup, simulate
 from harness.scene.spec import CameraSpec, ObservationSpec, OccluderSpec, SceneSpec
@@ -32,10 +33,10 @@ def test_detected_dots_sit_on_projected_markers(body, walk):
 def test_depth_buffer_agrees_with_ray_casting(body, walk):
     setup = build_setup(walk, SceneSpec(camera=CameraSpec(azimuth=120.0),
                                         occluders=OccluderSpec("low_wall", 0.3)), body)
-    depth_vis = rendered.depth_visible(setup, walk.qpos, tolerance=0.01, scale=2)
+    depth_vis = rendered.depth_visible(setup, walk.qpos)
     inside = setup.visibility != OUTSIDE
     agree = (depth_vis == (setup.visibility == VISIBLE))[inside]
-    assert agree.mean() > 0.93
+    assert agree.mean() > 0.98
     # The obstacle-hidden markers are hidden in the depth buffer too.
     hidden = setup.visibility == 3
     assert hidden.any() and (~depth_vis[hidden]).mean() > 0.95
@@ -54,5 +55,23 @@ def test_rendered_flows_agree_with_geometric_flows(body, walk):
         _, gi, ri = np.intersect1d(gi_ids, ri_ids, return_indices=True)
         errors.append(np.linalg.norm(obs_g.flows[t][gi, 2:] - obs_r.flows[t][ri, 2:], axis=1) / walk.fps)
     e = np.concatenate(errors)
-    assert len(e) >= 0.8 * total
+    assert len(e) >= 0.88 * total            # 92.5 % here; merged dot pairs and fast limbs lose the rest
     assert np.median(e) <= 0.5
+
+
+def test_tangent_plane_depth_is_the_ray_plane_intersection(rng):
+    """Against an independent computation: the 3D point at that depth on the pixel's ray lies on the plane."""
+    intr = Intrinsics.from_fov(45.0, 640, 480)
+    point = np.column_stack([rng.uniform(-1, 1, 50), rng.uniform(-1, 1, 50), rng.uniform(2, 6, 50)])
+    normal = rng.standard_normal((50, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    normal *= -np.sign((normal * point).sum(axis=1))[:, None]        # facing the camera
+    centres = project(intr, point) + rng.uniform(-1.0, 1.0, (50, 2))
+    z = rendered._tangent_plane_depth(intr, normal, point, centres)
+    ray_point = np.column_stack([(centres[:, 0] - intr.cx) / intr.fx * z, (centres[:, 1] - intr.cy) / intr.fy * z, z])
+    np.testing.assert_allclose(project(intr, ray_point), centres, atol=1e-9)
+    np.testing.assert_allclose(((ray_point - point) * normal).sum(axis=1), 0.0, atol=1e-9)
+    # A ray parallel to the plane falls back on the marker's own depth.
+    edge = rendered._tangent_plane_depth(intr, np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, 3.0]]),
+                                         np.array([[1e9, intr.cy]]))
+    assert edge[0] == 3.0 or abs(edge[0] - 3.0) < 1e-9

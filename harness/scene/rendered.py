@@ -34,7 +34,10 @@ FB_MAX_PX = 0.5             # forward-backward Lucas-Kanade consistency, pixels
 SNAP_PX = 2.0               # a tracked point must end this close to a detected dot, pixels
 MATCH_PX = 3.0              # ground truth: a dot is marker i if it lies this close to its projection
 MERGED_AREA = 3.0         # blob area, relative to the median, above which a blob is several dots
-LK_WINDOW = (15, 15)
+DEPTH_TOLERANCE = 5e-3     # m: buffer depth this far in front of the marker's tangent plane hides it
+DEPTH_MARGIN = 0.02        # m: buffer depth this far behind the tangent plane sees past the marker
+DEPTH_SCALE = 2            # depth check renders at this multiple of the camera resolution
+LK_WINDOW = (9, 9)         # px: small enough that a neighbouring dot rarely shares the window
 LK_LEVELS = 3
 
 
@@ -149,19 +152,59 @@ def rendered_flows(setup: "SceneSetup", qpos: np.ndarray, fps: float) -> list[tu
     return out
 
 
-def depth_visible(setup: "SceneSetup", qpos: np.ndarray, tolerance: float = 0.02, scale: int = 1) -> np.ndarray:
+def _tangent_plane_depth(intr, normal_cam: np.ndarray, point_cam: np.ndarray, centres: np.ndarray
+                         ) -> np.ndarray:
+    """Depth (m, along the optical axis) at which the rays through image points ``centres (M, 2)`` px meet
+    the planes through ``point_cam (M, 3)`` with normals ``normal_cam (M, 3)`` (camera frame).
+
+    The plane through ``p`` with normal ``n`` meets the ray ``lambda * d``, ``d = ((u - cx)/fx, (v - cy)/fy, 1)``,
+    at ``lambda = (n . p) / (n . d)``, which is also its depth since ``d_z = 1``. Where the ray runs parallel to
+    the plane (or meets it behind the camera) the marker's own depth is returned.
+    """
+    d = np.stack([(centres[:, 0] - intr.cx) / intr.fx, (centres[:, 1] - intr.cy) / intr.fy,
+                  np.ones(len(centres))], axis=1)
+    num = np.einsum("mi,mi->m", normal_cam, point_cam)
+    den = np.einsum("mi,mi->m", normal_cam, d)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = num / den
+    return np.where(np.isfinite(lam) & (lam > 0.0), lam, point_cam[:, 2])
+
+
+def depth_visible(setup: "SceneSetup", qpos: np.ndarray, tolerance: float = DEPTH_TOLERANCE,
+                  scale: int = DEPTH_SCALE, margin: float = DEPTH_MARGIN) -> np.ndarray:
     """Visibility from the renderer's depth buffer, ``(T, N)`` bool (an independent check of ray casting).
 
-    A marker in the image is visible when the rendered depth at its pixel is not smaller than its own
-    depth minus ``tolerance`` metres (the surface around a pixel centre is not exactly at the marker).
+    The rasteriser knows the nearest surface only at pixel centres, and a marker lies between four of them
+    (the 2x2 pixel centres around its projection, at ``scale`` times the camera resolution). At each centre
+    the depth the marker's own surface would have there is its tangent plane's depth along that pixel's ray
+    (``_tangent_plane_depth``; for a convex geom the true surface is never nearer than that plane when the
+    marker faces the camera). A centre whose buffer depth is beyond that plane by more than ``margin`` m
+    sees past the marker's surface (background or a farther part: the marker is at its geom's outline) and
+    says nothing about the marker; of the other centres the nearest to the projected marker decides:
+    visible when its buffer depth is not smaller than the plane depth minus ``tolerance`` m, hidden
+    otherwise. When all four see past the marker, nothing is in front of it: visible.
     """
     intr = setup.camera.intrinsics
     out = np.zeros(setup.visibility.shape, dtype=bool)
-    z = setup.marker_cam[..., 2]
+    normal_cam = np.einsum("tji,tnj->tni", setup.camera.rot, setup.marker_normal)
+    offsets = np.array([[0, 0], [1, 0], [0, 1], [1, 1]])
+    size = np.array([scale * intr.width, scale * intr.height])
     for t, depth in enumerate(render_frames(setup, qpos, depth=True, dots=False, scale=scale)):
-        inside = setup.visibility[t] != 1
-        idx = np.flatnonzero(inside)
-        col = np.clip(np.floor(scale * setup.pixels[t, idx, 0]).astype(int), 0, scale * intr.width - 1)
-        row = np.clip(np.floor(scale * setup.pixels[t, idx, 1]).astype(int), 0, scale * intr.height - 1)
-        out[t, idx] = depth[row, col] >= z[t, idx] - tolerance
+        idx = np.flatnonzero(setup.visibility[t] != 1)
+        px = scale * setup.pixels[t, idx]                                   # (M, 2) in the scaled image
+        corner = np.floor(px - 0.5).astype(int)                             # pixel whose centre is up-left
+        n_m = len(idx)
+        sees = np.empty((4, n_m), dtype=bool)
+        informative = np.empty((4, n_m), dtype=bool)
+        dist2 = np.empty((4, n_m))
+        for k, off in enumerate(offsets):
+            pix = np.clip(corner + off, 0, size - 1)
+            centre = pix + 0.5
+            plane = _tangent_plane_depth(intr, normal_cam[t, idx], setup.marker_cam[t, idx], centre / scale)
+            buf = depth[pix[:, 1], pix[:, 0]]
+            sees[k] = buf >= plane - tolerance
+            informative[k] = buf <= plane + margin
+            dist2[k] = ((centre - px) ** 2).sum(axis=1)
+        nearest = np.where(informative, dist2, np.inf).argmin(axis=0)
+        out[t, idx] = np.where(informative.any(axis=0), sees[nearest, np.arange(n_m)], True)
     return out

@@ -31,7 +31,7 @@ from harness.scene.markers import sample_markers
 from harness.scene.model import SceneModel
 from harness.scene.occluders import Box, build_occluders, check_camera_outside
 from harness.scene.spec import ObservationSpec, SceneError, SceneSpec
-from harness.scene.visibility import OUTSIDE, VISIBLE, classify, in_view, occlusion_fractions
+from harness.scene.visibility import OUTSIDE, VISIBLE, classify, in_view, marker_normals, occlusion_fractions
 
 OUTLIER_SPEED = 300.0   # px/s: bound of each outlier velocity component (10 px per frame at 30 fps)
 
@@ -117,6 +117,7 @@ class SceneSetup:
     marker_cam: np.ndarray        # (T, N, 3) m, OpenCV camera frame
     pixels: np.ndarray            # (T, N, 2) px, NaN where behind the camera
     visibility: np.ndarray        # (T, N) int8 cause
+    marker_normal: np.ndarray     # (T, N, 3) outward unit normals, world
 
 
 def build_setup(motion: Motion, spec: SceneSpec, body: BodyModel | None = None) -> SceneSetup:
@@ -130,10 +131,11 @@ def build_setup(motion: Motion, spec: SceneSpec, body: BodyModel | None = None) 
     boxes = build_occluders(spec.occluders, traj, world, view)
     check_camera_outside(boxes, traj.pos, spec.occluders.preset)
     scene = SceneModel(body, markers, boxes, spec.camera.fovy, spec.camera.width, spec.camera.height)
-    cause = classify(scene, motion.qpos, traj, world)
+    normals = marker_normals(scene, motion.qpos, markers.normal)
+    cause = classify(scene, motion.qpos, traj, world, normals)
     front = cam[..., 2] > 0
     pixels = np.where(front[..., None], project(traj.intrinsics, np.where(front[..., None], cam, 1.0)), np.nan)
-    return SceneSetup(body, markers, traj, boxes, scene, world, cam, pixels, cause)
+    return SceneSetup(body, markers, traj, boxes, scene, world, cam, pixels, cause, normals)
 
 
 def geometric_flows(pixels: np.ndarray, visible: np.ndarray, fps: float, noise_px: float,
