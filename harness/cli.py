@@ -59,6 +59,7 @@ def _load_command_modules() -> None:
     import harness.scene.scene_cli  # noqa: F401
     import harness.motion.capture_cli  # noqa: F401
     import harness.evaluation.cli  # noqa: F401
+    import harness.engine.cli  # noqa: F401
 
 
 def main(argv: list[str] | None = None) -> int:

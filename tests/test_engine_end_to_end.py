@@ -62,3 +62,19 @@ def test_bad_input_is_named(body, trained):
     trained_bad.covars_ = trained.covars_[:, :5]
     with pytest.raises(EngineError, match="database covars has shape"):
         Tracker(trained_bad, body)
+
+
+def test_command_line_learns_simulates_and_tracks(tmp_path):
+    """train-database -> simulate -> track, through files, as a user with recorded flows would."""
+    from harness.cli import main
+
+    db, obs, est = tmp_path / "db.npz", tmp_path / "obs.npz", tmp_path / "est.npz"
+    assert main(["train-database", "--out", str(db), "--classes", "walk", "squat", "--demos", "3",
+                 "--states", "8"]) == 0
+    assert main(["simulate", "--class", "squat", "--seed", "1", "--markers", "60", "--out", str(obs)]) == 0
+    assert main(["track", str(obs), "--database", str(db), "--particles", "40", "--out", str(est)]) == 0
+    with np.load(est) as z:
+        T = len(Observation.load(obs))
+        assert z["qpos"].shape == (T, 57) and z["class_posterior"].shape == (T, 2)
+        np.testing.assert_allclose(np.linalg.norm(z["qpos"][:, 3:7], axis=1), 1.0, atol=1e-9)
+    assert main(["track", str(obs), "--database", str(tmp_path / "missing.npz")]) == 2

@@ -52,20 +52,46 @@ def draw_flows(rgb: np.ndarray, flows: np.ndarray, outlier: np.ndarray | None = 
     return img
 
 
+def _spec(args):
+    from harness.scene.spec import CameraSpec, MarkerSpec, ObservationSpec, OccluderSpec, SceneSpec
+
+    return SceneSpec(MarkerSpec(args.markers, args.seed),
+                     CameraSpec(distance=args.distance, azimuth=args.azimuth, elevation=args.elevation),
+                     OccluderSpec(args.preset, args.amount, args.seed),
+                     ObservationSpec(mode=args.mode, noise_px=args.noise))
+
+
+def _simulate_args(p: argparse.ArgumentParser) -> None:
+    _args(p)
+    p.set_defaults(out="observation.npz")
+    p.add_argument("--truth", default=None, help="also write the ground truth (.npz) to this path")
+
+
+@command("simulate", _simulate_args)
+def simulate_command(args: argparse.Namespace) -> int:
+    """Write what the scene camera observes (the engine's input, .npz) and optionally the ground truth."""
+    from harness.body import BodyModel
+    from harness.scene.simulate import simulate
+
+    obs, truth = simulate(_motion(args), _spec(args), np.random.default_rng(args.seed), BodyModel.load())
+    obs.save(args.out)
+    if args.truth:
+        truth.save(args.truth)
+    print(f"{args.out}: {len(obs)} frames, {int(obs.counts.sum())} flows; obstacle occlusion "
+          f"{truth.obstacle_occlusion():.2f}, mean self-occlusion {truth.self_fraction.mean():.2f}")
+    return 0
+
+
 @command("scene-video", _args)
 def scene_video(args: argparse.Namespace) -> int:
     """Video of the scene camera with the observed flows drawn (yellow; red for outliers)."""
     from harness.body import BodyModel
     from harness.scene.rendered import render_frames
     from harness.scene.simulate import build_setup, simulate
-    from harness.scene.spec import CameraSpec, MarkerSpec, ObservationSpec, OccluderSpec, SceneSpec
     from harness.video import write_video
 
     motion = _motion(args)
-    spec = SceneSpec(MarkerSpec(args.markers, args.seed),
-                     CameraSpec(distance=args.distance, azimuth=args.azimuth, elevation=args.elevation),
-                     OccluderSpec(args.preset, args.amount, args.seed),
-                     ObservationSpec(mode=args.mode, noise_px=args.noise))
+    spec = _spec(args)
     body = BodyModel.load()
     obs, truth = simulate(motion, spec, np.random.default_rng(args.seed), body)
     setup = build_setup(motion, spec, body)
