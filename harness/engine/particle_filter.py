@@ -29,10 +29,11 @@ def effective_sample_size(weights: np.ndarray) -> float:
     return float(1.0 / np.sum(w * w))
 
 
-def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Indices ``(N,)`` drawn by systematic resampling: one uniform offset, N evenly spaced pointers."""
+def systematic_resample(weights: np.ndarray, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+    """Indices ``(n,)`` (default ``n = len(weights)``) drawn by systematic resampling: one uniform offset,
+    ``n`` evenly spaced pointers."""
     w = np.asarray(weights, dtype=float)
-    n = len(w)
+    n = len(w) if n is None else int(n)
     cum = np.cumsum(w / w.sum())
     cum[-1] = 1.0
     pointers = (rng.random() + np.arange(n)) / n
@@ -78,9 +79,9 @@ class ParticleFilter:
 
     def initialise(self, intr: Intrinsics, flows: np.ndarray, depth_range: tuple[float, float],
                    elevation_range: tuple[float, float], body_height: float) -> None:
-        """Spread the particles over a coarse prior: the subject where the flows are, at a depth between
-        what the flows' vertical extent suggests and the given range, any heading, upright under a camera
-        pitched within ``elevation_range`` (radians)."""
+        """Spread the particles over a coarse prior: the subject where the flows are, at a depth within the
+        given range and a band around what the flows' vertical extent suggests, any heading, upright under a
+        camera pitched within ``elevation_range`` (radians)."""
         lo, hi = depth_range
         if not 0 < lo < hi:
             raise EngineError(f"depth range must satisfy 0 < near < far, got {depth_range}")
@@ -89,12 +90,17 @@ class ParticleFilter:
         if len(pts) >= 2:
             u_lo, u_hi = np.percentile(pts[:, 0], [5, 95])
             v_lo, v_hi = np.percentile(pts[:, 1], [5, 95])
-            guess = intr.fy * body_height / max(v_hi - v_lo, 1.0)
-            near, far = max(lo, 0.6 * guess), min(hi, 1.6 * guess)
+            # The flows' height suggests a depth for a body of known height. It overestimates the depth when
+            # the body is partly hidden (a wall hiding the legs) or crouched, and underestimates it when the
+            # arms are raised, hence the asymmetric band.
+            extent = max(v_hi - v_lo, 1.0)
+            guess = intr.fy * body_height / extent
+            near, far = max(lo, 0.35 * guess), min(hi, 1.3 * guess)
             if near >= far:
                 near, far = lo, hi
             u = rng.uniform(u_lo, u_hi, n) if u_hi > u_lo else np.full(n, u_lo)
-            v = rng.uniform(v_lo + 0.25 * (v_hi - v_lo), v_hi - 0.25 * (v_hi - v_lo), n)
+            # The base (pelvis) is in the lower part of the visible body, or below it when the legs are hidden.
+            v = rng.uniform(v_lo + 0.2 * extent, v_hi + 0.3 * extent, n)
         else:
             near, far = lo, hi
             u = rng.uniform(0, intr.width, n)
@@ -176,6 +182,15 @@ class ParticleFilter:
         self.quats[worst] = geometry.multiply(np.broadcast_to(quat, (k, 4)), geometry.yaw(turns))
         self.log_weights[worst] = np.median(self.log_weights)
         self.log_weights -= logsumexp(self.log_weights)
+
+    def select(self, log_likelihood: np.ndarray, n: int) -> None:
+        """Keep ``n`` particles drawn by systematic resampling with weights from ``log_likelihood``: how a
+        wide initial cloud is narrowed to the working size after the first frame."""
+        ll = np.asarray(log_likelihood, dtype=float)
+        idx = systematic_resample(np.exp(ll - ll.max()), self.rng, n)
+        self.n = int(n)
+        self.positions, self.quats = self.positions[idx], self.quats[idx]
+        self.log_weights = np.full(self.n, -np.log(self.n))
 
     # --- read-out -------------------------------------------------------------------------------
 

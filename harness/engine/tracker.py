@@ -45,6 +45,7 @@ class TrackerConfig:
     model_seed: int = 7                      # the engine's own surface sample; independent of the markers
     init_distance: tuple[float, float] = (2.0, 8.0)
     init_elevation: tuple[float, float] = (-10.0, 40.0)
+    init_factor: int = 8                     # the first frame weighs this many times more particles
     noise_px: float = 1.0                    # assumed pixel noise of flow positions
     outlier_prob: float = 0.05
     n_eff_filter: float = 10.0               # tempering: a frame counts as at most this many flows
@@ -151,8 +152,20 @@ class Tracker:
             if len(flows) == 0:
                 self._pending += 1
                 return
+            # A cloud init_factor times wider than the working size, narrowed by the first frame's flows.
+            n = self.filter.n
+            self.filter.n = n * cfg.init_factor
             self.filter.initialise(self.intr, flows, cfg.init_distance, tuple(np.deg2rad(cfg.init_elevation)),
                                    self.body_height)
+            if pose is None:
+                prior = self.recognizer.posterior.ravel()
+                img = to_image(self.intr, geometry.to_matrix(self.filter.quats), self.filter.positions,
+                               self.dists.mixture(prior), camera_motion)
+                ll = flow_log_likelihoods(flows, img, cfg.noise_px, self.fps, self.intr.width, self.intr.height,
+                                          cfg.outlier_prob)
+                self.filter.select(tempered(ll, cfg.n_eff_filter), n)
+            else:
+                self.filter.select(np.zeros(self.filter.n), n)
             self._started = True
         else:
             post = self.recognizer.posterior.ravel()
