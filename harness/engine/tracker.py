@@ -48,6 +48,8 @@ class TrackerConfig:
     init_factor: int = 8                     # the first frame weighs this many times more particles
     noise_px: float = 1.0                    # assumed pixel noise of flow positions
     outlier_prob: float = 0.05
+    weight_iterations: int = 2               # EM steps on the model points' mixture weights per hypothesis
+    weight_smoothing: float = 10.0           # pseudo-flows holding the weights towards uniform
     n_eff_filter: float = 10.0               # tempering: a frame counts as at most this many flows
     n_eff_recognition: float = 10.0
     start_spread: float = 0.05
@@ -162,7 +164,8 @@ class Tracker:
                 img = to_image(self.intr, geometry.to_matrix(self.filter.quats), self.filter.positions,
                                self.dists.mixture(prior), camera_motion)
                 ll = flow_log_likelihoods(flows, img, cfg.noise_px, self.fps, self.intr.width, self.intr.height,
-                                          cfg.outlier_prob)
+                                          cfg.outlier_prob,
+                                          weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing)
                 self.filter.select(tempered(ll, cfg.n_eff_filter), n)
             else:
                 self.filter.select(np.zeros(self.filter.n), n)
@@ -183,7 +186,8 @@ class Tracker:
             mix = states.mixture(prior)
             img = to_image(self.intr, geometry.to_matrix(self.filter.quats), self.filter.positions, mix,
                            camera_motion)
-            ll = flow_log_likelihoods(flows, img, cfg.noise_px, self.fps, W, H, cfg.outlier_prob)
+            ll = flow_log_likelihoods(flows, img, cfg.noise_px, self.fps, W, H, cfg.outlier_prob,
+                                          weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing)
             self.filter.update(tempered(ll, cfg.n_eff_filter))
         pos, quat = self.filter.estimate() if pose is None else (np.asarray(pose[0]), np.asarray(pose[1]))
         rot = geometry.to_matrix(quat)
@@ -194,7 +198,8 @@ class Tracker:
         if len(flows):
             img = to_image(self.intr, rot[None], pos[None], states, camera_motion)
             log_b[active] = tempered(flow_log_likelihoods(flows, img, cfg.noise_px, self.fps, W, H,
-                                                          cfg.outlier_prob), cfg.n_eff_recognition)
+                                                          cfg.outlier_prob,
+                                          weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing), cfg.n_eff_recognition)
         self.recognizer.update(log_b.reshape(self.recognizer.log_alpha.shape))
 
         # Recover the angles of the recognised primitive, refine them with the pose, feed the pose back.
@@ -224,7 +229,8 @@ class Tracker:
                         self.body, angles, np.zeros(50), mix_rates, mix_rate_var, mix.base_linear[0],
                         np.zeros(3), mix.base_angular[0], np.zeros(3), self.points, self.spread)
                 img = to_image(self.intr, rot_r[None], pos_r[None], mix, camera_motion)
-                resp = responsibilities(flows, img, cfg.noise_px, self.fps, W, H, cfg.outlier_prob)
+                resp = responsibilities(flows, img, cfg.noise_px, self.fps, W, H, cfg.outlier_prob,
+                                        weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing)
                 # M-step: Gauss-Newton on angles and pose under the HMM prior and the filter's spread.
                 angles, pos_r, rot_r = refine_pose(self.body, self.points, self.intr, flows, resp, theta0,
                                                    np.sqrt(var), pos, rot, spread, 0.3, cfg.noise_px,
