@@ -58,6 +58,7 @@ class TrackerConfig:
     position_noise: float = 0.15             # m / sqrt(s)
     rotation_noise: float = 0.3              # rad / sqrt(s)
     refine_iterations: int = 2              # Gauss-Newton steps per M-step
+    refine_position_std: float = 0.25        # m: least pose freedom recovery has around the filter's estimate
     em_iterations: int = 3                  # re-assignments of flows to model points during recovery
     inject_fraction: float = 0.1
     jump_fraction: float = 0.06              # particles re-seeded each frame at mirrored headings
@@ -218,7 +219,7 @@ class Tracker:
         if len(flows):
             f = self.filter
             spread = np.sqrt(np.average((f.positions - pos) ** 2, axis=0, weights=f.weights))
-            spread = np.maximum(spread, 0.02)
+            spread = np.maximum(spread, cfg.refine_position_std)
             mix = self.dists.take(idx).mixture(gamma)
             pos_r, rot_r = pos, rot
             for it in range(cfg.em_iterations):
