@@ -61,6 +61,13 @@ def _mean_ci(x: np.ndarray, seed: int) -> tuple[float, float, float]:
     return float(np.mean(x)), lo, hi
 
 
+def _colour(method: str) -> str:
+    """One colour per method in every panel and plot (matplotlib's default cycle, in METHODS order)."""
+    order = ("full", "gt_base", "no_database", "joint_space")
+    cycle = ("C0", "C1", "C2", "C3")
+    return cycle[order.index(method)] if method in order else "C7"
+
+
 def plot_against(rows: pd.DataFrame, key: str, path: Path, seed: int = 0) -> bool:
     """Metrics against swept ``key``, one panel per metric, one line per method; False if nothing to draw."""
     metrics = [m for m in PLOT_METRICS.get(key, DEFAULT_METRICS) if m in rows and rows[m].notna().any()]
@@ -76,11 +83,12 @@ def plot_against(rows: pd.DataFrame, key: str, path: Path, seed: int = 0) -> boo
                      for v in xs]
             mean, lo, hi = (np.array(s) for s in zip(*stats))
             if np.isfinite(mean).any():
-                ax.errorbar(xs, mean, yerr=[mean - lo, hi - mean], marker="o", capsize=3, label=method)
+                ax.errorbar(xs, mean, yerr=[mean - lo, hi - mean], marker="o", capsize=3, label=method,
+                            color=_colour(method))
         ax.set_xlabel(key)
         ax.set_ylabel(LABELS.get(metric, metric))
         ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=8)
+        ax.legend(fontsize=8)   # per panel: methods without a metric are absent from its panel
     fig.tight_layout()
     _save(fig, path)
     plt.close(fig)
@@ -96,7 +104,8 @@ def plot_measured_occlusion(rows: pd.DataFrame, path: Path) -> bool:
     for method, g in rows.groupby("method", sort=False):
         per = g.assign(occ=g["self_occlusion"] + g["obstacle_occlusion"]).groupby("condition", sort=False)
         pts = per.agg(occ=("occ", "mean"), acc=("correct", "mean")).sort_values("occ")
-        ax.plot(pts["occ"], pts["acc"], marker="o", label=method)
+        if pts["acc"].notna().any():
+            ax.plot(pts["occ"], pts["acc"], marker="o", label=method, color=_colour(method))
     ax.set_xlabel("measured occlusion (fraction of markers hidden)")
     ax.set_ylabel("accuracy")
     ax.set_ylim(-0.02, 1.02)

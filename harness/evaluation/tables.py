@@ -100,11 +100,14 @@ def paired_tests(rows: pd.DataFrame, reference: str = "full") -> pd.DataFrame:
         for other in sorted(set(wide) - {reference}, key=_method_rank):
             o = wide[other]
             common = ref.index.intersection(o.index).sort_values()
-            mc = mcnemar_exact(ref.loc[common, "correct"], o.loc[common, "correct"])
-            out.append({"condition": cond, "comparison": f"{reference} vs {other}", "test": "McNemar (exact)",
-                        "metric": "correct", "n_pairs": mc["n_pairs"],
-                        "effect": f"{reference} only right {mc['a_only']}, {other} only right {mc['b_only']}",
-                        "p_value": mc["p_value"]})
+            # A method without recognition (no_database) has no 'correct' to compare.
+            recognises = pd.to_numeric(o.loc[common, "correct"], errors="coerce").notna().any()
+            if recognises:
+                mc = mcnemar_exact(ref.loc[common, "correct"], o.loc[common, "correct"])
+                out.append({"condition": cond, "comparison": f"{reference} vs {other}", "test": "McNemar (exact)",
+                            "metric": "correct", "n_pairs": mc["n_pairs"],
+                            "effect": f"{reference} only right {mc['a_only']}, {other} only right {mc['b_only']}",
+                            "p_value": mc["p_value"]})
             if "mpjpe_rel_mm" in ref and "mpjpe_rel_mm" in o:
                 w = wilcoxon_paired(ref.loc[common, "mpjpe_rel_mm"], o.loc[common, "mpjpe_rel_mm"])
                 if w["n_pairs"]:
