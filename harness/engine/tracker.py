@@ -50,8 +50,8 @@ class TrackerConfig:
     outlier_prob: float = 0.05
     weight_iterations: int = 2               # EM steps on the model points' mixture weights per hypothesis
     weight_smoothing: float = 10.0           # pseudo-flows holding the weights towards uniform
-    n_eff_filter: float = 10.0               # tempering: a frame counts as at most this many flows
-    n_eff_recognition: float = 10.0
+    n_eff_filter: float = 4.0                # tempering: a frame counts as at most this many flows
+    n_eff_recognition: float = 3.0
     start_spread: float = 0.05
     prune: float = 1e-4
     ess_fraction: float = 0.5
