@@ -38,3 +38,14 @@ def save_npz_atomic(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
 
 def write_text_atomic(path: str | Path, text: str) -> None:
     write_atomic(path, lambda fh: fh.write(text.encode("utf-8")))
+
+
+def read_text(path: str | Path, error: type[Exception], kind: str) -> str:
+    """The text of a file (any line endings, undecodable bytes replaced); ``error`` names the file when it is
+    missing or unreadable, e.g. ``BvhError("x.bvh: no such BVH file")``."""
+    try:
+        return Path(path).read_bytes().decode("utf-8", errors="replace")
+    except FileNotFoundError:
+        raise error(f"{path}: no such {kind} file") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot be read ({exc.strerror})") from None

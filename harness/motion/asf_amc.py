@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.errors import HarnessError
+from harness.io import read_text
 from harness.motion.bvh import axis_rotation
 
 ROTATION_DOFS = {"rx": 0, "ry": 1, "rz": 2}
@@ -100,12 +101,7 @@ class AmcMotion:
 
 
 def _read_lines(path: Path, kind: str) -> list[tuple[int, list[str]]]:
-    try:
-        text = path.read_bytes().decode("utf-8", errors="replace")
-    except FileNotFoundError:
-        raise AsfAmcError(f"{path}: no such {kind} file") from None
-    except OSError as exc:
-        raise AsfAmcError(f"{path}: cannot be read ({exc.strerror})") from None
+    text = read_text(path, AsfAmcError, kind)
     return [(i + 1, line.split()) for i, line in enumerate(text.splitlines())
             if line.strip() and not line.lstrip().startswith("#")]
 

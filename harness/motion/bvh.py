@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.errors import HarnessError
+from harness.io import read_text
 
 #: Metres per BVH unit in the CMU conversions: they keep the lengths of CMU's ASF files, whose
 #: ``:units length 0.45`` makes one unit 1/0.45 inch.
@@ -232,10 +233,4 @@ def parse_bvh(text: str, path: str | Path = "<string>") -> BvhClip:
 def load_bvh(path: str | Path) -> BvhClip:
     """Read a BVH file (any line endings). Raises :class:`BvhError` naming the file and line."""
     path = Path(path)
-    try:
-        text = path.read_bytes().decode("utf-8", errors="replace")
-    except FileNotFoundError:
-        raise BvhError(f"{path}: no such BVH file") from None
-    except OSError as exc:
-        raise BvhError(f"{path}: cannot be read ({exc.strerror})") from None
-    return parse_bvh(text, path)
+    return parse_bvh(read_text(path, BvhError, "BVH"), path)
