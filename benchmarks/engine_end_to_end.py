@@ -16,13 +16,13 @@ import time
 import numpy as np
 
 from harness import geometry
-from harness.body import BodyModel, body_origins
+from harness.body import BodyModel
 from harness.engine import MotionDatabase, Tracker, TrackerConfig, motion_features, recognize_features
+from harness.engine.database import CYCLIC_PRIMITIVES
+from harness.evaluation.metrics import mpjpe_relative_mm
 from harness.motion.performer import CLASSES, demonstrations
 from harness.scene import CameraSpec, MarkerSpec, ObservationSpec, OccluderSpec, SceneSpec
 from harness.scene.simulate import simulate
-
-CYCLIC = ("walk", "run", "jumping_jack", "wave")
 
 
 def main() -> None:
@@ -44,7 +44,7 @@ def main() -> None:
     train_rng = np.random.default_rng(1000)
     train = [m for c in CLASSES for m in
              (demonstrations(c, 1, train_rng, subject=int(s))[0] for s in range(args.train))]
-    db = MotionDatabase(n_states=args.states, cyclic=CYCLIC).fit(train)
+    db = MotionDatabase(n_states=args.states, cyclic=CYCLIC_PRIMITIVES).fit(train)
     print(f"database: {len(train)} demos, {time.perf_counter() - t0:.1f} s")
     tracker = Tracker(db, body, TrackerConfig(particles=args.particles, **{k: (int(v) if v.isdigit() else float(v)) for k, v in (a.split('=') for a in args.set)}), rng=np.random.default_rng(args.eval_seed))
 
@@ -64,7 +64,6 @@ def main() -> None:
             ms = 1e3 * (time.perf_counter() - t1) / len(obs)
             q_true = truth.qpos.copy()
             q_true[:, :3], q_true[:, 3:7] = truth.base_pos_cam, truth.base_quat_cam
-            rel = np.linalg.norm(body_origins(body, est.qpos, "base") - body_origins(body, q_true, "base"), axis=-1)
             pos_err = np.linalg.norm(est.qpos[:, :3] - truth.base_pos_cam, axis=1)
             f_err = np.linalg.norm(est.filter_pos - truth.base_pos_cam, axis=1)
             fwd_est = geometry.rotate(est.qpos[:, 3:7], np.array([1.0, 0, 0]))
@@ -72,7 +71,7 @@ def main() -> None:
             # Heading: angle between the forward axes projected on the camera's x-z plane (its floor, roughly).
             h_est, h_true = np.arctan2(fwd_est[:, 0], fwd_est[:, 2]), np.arctan2(fwd_true[:, 0], fwd_true[:, 2])
             head = np.rad2deg(np.abs(np.angle(np.exp(1j * (h_est - h_true)))))
-            row = dict(cls=c, pred=est.predicted, js=js, mpjpe=1e3 * rel.mean(), pos=pos_err.mean(),
+            row = dict(cls=c, pred=est.predicted, js=js, mpjpe=mpjpe_relative_mm(body, est.qpos, q_true), pos=pos_err.mean(),
                        fpos=f_err.mean(), head=head.mean(), ms=ms, occ=truth.obstacle_fraction.mean(),
                        flows=obs.counts[1:].mean())
             rows.append(row)

@@ -13,6 +13,7 @@ import numpy as np
 
 from harness.body import BodyModel
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
+from harness.engine.database import CYCLIC_PRIMITIVES
 from harness.motion.performer import CLASSES, demonstrations
 from harness.scene import CameraSpec, MarkerSpec, ObservationSpec, OccluderSpec, SceneSpec
 from harness.scene.simulate import simulate
@@ -27,7 +28,7 @@ def main() -> None:
     body = BodyModel.load()
     rng = np.random.default_rng(0)
     train = [demonstrations(c, 1, rng, subject=s)[0] for c in CLASSES for s in range(6)]
-    db = MotionDatabase(n_states=20, cyclic=("walk", "run", "jumping_jack", "wave")).fit(train)
+    db = MotionDatabase(n_states=20, cyclic=CYCLIC_PRIMITIVES).fit(train)
     t0 = time.perf_counter()
     tracker = Tracker(db, body, TrackerConfig(particles=args.particles, model_points=args.points),
                       rng=np.random.default_rng(1))

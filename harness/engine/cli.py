@@ -14,7 +14,6 @@ from harness.cli import command
 from harness.errors import EngineError
 from harness.io import save_npz_atomic
 
-CYCLIC = ("walk", "run", "jumping_jack", "wave")
 
 
 def _train_args(p: argparse.ArgumentParser) -> None:
@@ -31,7 +30,7 @@ def _train_args(p: argparse.ArgumentParser) -> None:
 @command("train-database", _train_args)
 def train_database(args: argparse.Namespace) -> int:
     """Learn the motion database (one HMM per primitive) and write it as .npz."""
-    from harness.engine.database import MotionDatabase
+    from harness.engine.database import CYCLIC_PRIMITIVES, MotionDatabase
 
     if args.capture_dir:
         from harness.motion.captures import load_capture_set
@@ -44,7 +43,7 @@ def train_database(args: argparse.Namespace) -> int:
         for i, c in enumerate(args.classes or CLASSES):
             rng = np.random.default_rng([args.seed, i])
             motions += [demonstrations(c, 1, rng, fps=args.fps, subject=s)[0] for s in range(args.demos)]
-    db = MotionDatabase(n_states=args.states, cyclic=CYCLIC).fit(motions)
+    db = MotionDatabase(n_states=args.states, cyclic=CYCLIC_PRIMITIVES).fit(motions)
     db.save(args.out)
     print(f"{args.out}: {len(db.classes_)} primitives x {args.states} states from {len(motions)} demonstrations")
     return 0

@@ -23,6 +23,9 @@ from harness.io import save_npz_atomic
 from harness.motion.motion import Motion
 
 DEFAULT_STATES = 20
+# Primitives whose HMM wraps from its last state to its first (the periodic ones of the procedural performer
+# and of the capture sets); every tool that learns a database passes this unless told otherwise.
+CYCLIC_PRIMITIVES = ("walk", "run", "jumping_jack", "wave")
 # Variance floor per feature group, as standard deviations: (2 deg)^2 for angles, (0.3 rad/s)^2 for their
 # rates, (0.05 m/s)^2 and (0.1 rad/s)^2 for the base. Below these the Gaussians claim a repeatability that
 # a human demonstrator does not have, and held-out demonstrations fall outside them.

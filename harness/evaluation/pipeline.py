@@ -21,6 +21,7 @@ import numpy as np
 
 from harness.body import BodyModel
 from harness.engine import MotionDatabase, Tracker, TrackerConfig, motion_features, recognize_features
+from harness.engine.database import CYCLIC_PRIMITIVES
 from harness.engine.recovery import fit_without_database
 from harness.evaluation import metrics
 from harness.evaluation.cache import cached, path_for_key, stable_hash
@@ -28,7 +29,6 @@ from harness.evaluation.runner import RunError, RunSpec
 from harness.evaluation.scenario import Scenario
 from harness.motion import Motion
 
-CYCLIC = ("walk", "run", "jumping_jack", "wave")   # primitives whose HMM wraps from its last state to its first
 TEST_SUBJECT_OFFSET = 1000                         # held-out procedural demos use subjects never used in training
 _MEMO: dict = {}
 
@@ -99,7 +99,7 @@ def database(cfg: Scenario, test: Motion | None, cache_dir: str | Path) -> Motio
     """The run's database, trained once per distinct configuration and cached on disk."""
     db = cfg.database
     key = {"source": db.source, "classes": list(cfg.classes), "states": db.states, "fps": db.fps,
-           "cyclic": list(CYCLIC), "format": 1}
+           "cyclic": list(CYCLIC_PRIMITIVES), "format": 1}
     if db.source == "procedural":
         key |= {"train_demos": db.train_demos, "seed": db.seed}
     else:
@@ -108,7 +108,7 @@ def database(cfg: Scenario, test: Motion | None, cache_dir: str | Path) -> Motio
     memo = ("db", stable_hash(key))
     if memo not in _MEMO:
         def build():
-            return MotionDatabase(n_states=db.states, cyclic=CYCLIC).fit(training_motions(cfg, test))
+            return MotionDatabase(n_states=db.states, cyclic=CYCLIC_PRIMITIVES).fit(training_motions(cfg, test))
 
         _MEMO[memo] = cached(path_for_key(Path(cache_dir) / "databases", key), build,
                              lambda obj, fh: np.savez(fh, **obj.to_arrays()), MotionDatabase.load)
