@@ -19,7 +19,7 @@ from harness import geometry
 from harness.body import BodyModel
 from harness.engine import MotionDatabase, Tracker, TrackerConfig, motion_features, recognize_features
 from harness.engine.database import CYCLIC_PRIMITIVES
-from harness.evaluation.metrics import mpjpe_relative_mm
+from harness.evaluation.metrics import mpjpe_pose_mm
 from harness.motion.performer import CLASSES, demonstrations
 from harness.scene import CameraSpec, MarkerSpec, ObservationSpec, OccluderSpec, SceneSpec
 from harness.scene.simulate import simulate
@@ -71,7 +71,7 @@ def main() -> None:
             # Heading: angle between the forward axes projected on the camera's x-z plane (its floor, roughly).
             h_est, h_true = np.arctan2(fwd_est[:, 0], fwd_est[:, 2]), np.arctan2(fwd_true[:, 0], fwd_true[:, 2])
             head = np.rad2deg(np.abs(np.angle(np.exp(1j * (h_est - h_true)))))
-            row = dict(cls=c, pred=est.predicted, js=js, mpjpe=mpjpe_relative_mm(body, est.qpos, q_true), pos=pos_err.mean(),
+            row = dict(cls=c, pred=est.predicted, js=js, mpjpe=mpjpe_pose_mm(body, est.qpos, q_true), pos=pos_err.mean(),
                        fpos=f_err.mean(), head=head.mean(), ms=ms, occ=truth.obstacle_fraction.mean(),
                        flows=obs.counts[1:].mean())
             rows.append(row)

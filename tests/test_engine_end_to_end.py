@@ -78,3 +78,14 @@ def test_command_line_learns_simulates_and_tracks(tmp_path):
         assert z["qpos"].shape == (T, 57) and z["class_posterior"].shape == (T, 2)
         np.testing.assert_allclose(np.linalg.norm(z["qpos"][:, 3:7], axis=1), 1.0, atol=1e-9)
     assert main(["track", str(obs), "--database", str(tmp_path / "missing.npz")]) == 2
+
+
+def test_a_given_base_pose_is_kept(body, trained):
+    # The ground-truth-pose baseline: recovery fits the angles at the given pose and never moves it.
+    m = synthetic_demos(body, "squat", 1, np.random.default_rng(6), seconds=0.6)[0]
+    obs, base_pos, base_quat = synthetic_observation(body, m, np.random.default_rng(7))
+    est = Tracker(trained, body, TrackerConfig(particles=20), rng=np.random.default_rng(1)).run(
+        obs, base_pose=(base_pos, base_quat))
+    np.testing.assert_allclose(est.qpos[:, :3], base_pos, atol=1e-12)
+    np.testing.assert_allclose(np.abs(np.sum(est.qpos[:, 3:7] * base_quat, axis=1)), 1.0, atol=1e-12)
+    assert np.abs(est.qpos[:, 7:] - est.qpos[0, 7:]).max() > 0.01      # the angles did move

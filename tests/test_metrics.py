@@ -6,7 +6,7 @@ import pytest
 
 from harness.body import SurfacePoints, body_origins
 from harness.evaluation import metrics
-from harness.geometry import exp, to_matrix
+from harness.geometry import exp, from_matrix, multiply, to_matrix, yaw
 from harness.pinhole import Intrinsics
 
 
@@ -49,10 +49,10 @@ def test_mpjpe_with_a_known_offset(body, rng):
     assert metrics.mpjpe_absolute_mm(body, est, true) == pytest.approx(130.0, abs=1e-9)
     # A base offset (and a different base rotation) is invisible root-relative.
     est[:, 3:7] = exp(rng.normal(size=(len(est), 3)))
-    assert metrics.mpjpe_relative_mm(body, est, true) == pytest.approx(0.0, abs=1e-9)
+    assert metrics.mpjpe_pose_mm(body, est, true) == pytest.approx(0.0, abs=1e-9)
 
 
-def test_mpjpe_relative_against_mujoco_positions(body, rng):
+def test_mpjpe_pose_against_mujoco_positions(body, rng):
     true = body.zero_qpos()[None]
     est = true.copy()
     knee = body.angle_qpos_index[body.joint_names.index(next(n for n in body.joint_names if "tibia" in n))]
@@ -65,7 +65,7 @@ def test_mpjpe_relative_against_mujoco_positions(body, rng):
         pos.append(d.xpos[2:].copy())   # every body but world and root; the base stays at its zero pose
     expected = 1000.0 * np.mean(np.linalg.norm(pos[0] - pos[1], axis=1))
     assert expected > 1.0
-    assert metrics.mpjpe_relative_mm(body, est, true) == pytest.approx(expected, rel=1e-9)
+    assert metrics.mpjpe_pose_mm(body, est, true) == pytest.approx(expected, rel=1e-9)
 
 
 def test_base_errors_of_a_known_rotation_and_translation():
@@ -95,3 +95,95 @@ def test_reprojection_error_of_a_shifted_observation(body, rng):
     assert err == pytest.approx(4.0, abs=1e-9)
     assert np.isnan(metrics.reprojection_px(body, qpos, markers, intr, frame[:0], marker[:0], uv[:0]))
     assert np.allclose(body_origins(body, qpos)[:, 0], qpos[:, :3])
+
+
+def _camera(elevation_deg: float, t: int) -> np.ndarray:
+    """World-from-camera rotations (OpenCV axes as columns) of a camera looking along world +x, pitched down."""
+    e = np.deg2rad(elevation_deg)
+    fwd = np.array([np.cos(e), 0.0, -np.sin(e)])
+    right = np.array([0.0, -1.0, 0.0])
+    down = np.cross(fwd, right)
+    return np.repeat(np.stack([right, down, fwd], axis=1)[None], t, axis=0)
+
+
+def test_a_body_turned_by_half_a_turn_is_right_pose_only_and_wrong_in_the_camera(body, rng):
+    t = 3
+    cam = _camera(20.0, t)
+    angles = body.random_angles(rng, t, scale=0.3)
+    world_quat = exp(rng.normal(scale=0.1, size=(t, 3)))                # nearly upright, some tilt
+    true_q = from_matrix(np.swapaxes(cam, 1, 2) @ to_matrix(world_quat))
+    turned_q = from_matrix(np.swapaxes(cam, 1, 2) @ to_matrix(multiply(yaw(np.full(t, np.pi)), world_quat)))
+    pos = np.tile([0.2, 0.1, 4.0], (t, 1))
+    true = metrics.camera_qpos(body, pos, true_q, angles)
+    turned = metrics.camera_qpos(body, pos, turned_q, angles)
+    assert metrics.mpjpe_pose_mm(body, turned, true) == pytest.approx(0.0, abs=1e-9)
+    # Hand computation: a half turn about the vertical through the pelvis maps a joint at horizontal distance
+    # r from that axis to the opposite side, 2r away; vertical offsets are unchanged.
+    joints = body_origins(body, metrics.camera_qpos(body, np.zeros((t, 3)), from_matrix(
+        np.swapaxes(cam, 1, 2) @ to_matrix(world_quat)), angles), frame="world")     # root at the origin
+    up = cam[:, 2, :]                                                     # world z in camera coordinates
+    horiz = joints - np.einsum("tjk,tk->tj", joints, up)[..., None] * up[:, None, :]
+    expected = 1000.0 * np.mean(2.0 * np.linalg.norm(horiz[:, 1:], axis=-1))
+    assert metrics.mpjpe_camera_mm(body, turned, true) == pytest.approx(expected, rel=1e-9)
+    assert metrics.mpjpe_camera_mm(body, turned, true) > 100.0
+    err = metrics.heading_tilt_errors(turned_q, true_q, cam)
+    assert err["heading_err_deg"] == pytest.approx(180.0, abs=1e-6)
+    assert err["tilt_err_deg"] == pytest.approx(0.0, abs=1e-6)
+    # Procrustes undoes any rotation: protocol 2 sees only the (identical) pose.
+    assert metrics.pa_mpjpe_mm(body, turned, true) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_heading_and_tilt_split_a_known_rotation():
+    t = 2
+    cam = _camera(35.0, t)
+    true_world = exp(np.array([[0.1, -0.2, 0.7], [0.0, 0.3, -1.2]]))
+    tilt = exp(np.tile([np.deg2rad(12.0), 0.0, 0.0], (t, 1)))            # about world x, after the yaw
+    est_world = multiply(tilt, multiply(yaw(np.full(t, np.deg2rad(40.0))), true_world))
+    to_cam = np.swapaxes(cam, 1, 2)
+    out = metrics.heading_tilt_errors(from_matrix(to_cam @ to_matrix(est_world)),
+                                      from_matrix(to_cam @ to_matrix(true_world)), cam)
+    assert out["heading_err_deg"] == pytest.approx(40.0, abs=1e-6)
+    assert out["tilt_err_deg"] == pytest.approx(12.0, abs=1e-6)
+
+
+def test_camera_frame_mpjpe_ignores_translation_and_counts_rotation(body, rng):
+    true = _walkish(body, rng)
+    est = true.copy()
+    est[:, :3] += [0.5, -0.3, 1.0]
+    assert metrics.mpjpe_camera_mm(body, est, true) == pytest.approx(0.0, abs=1e-9)
+    est[:, 3:7] = multiply(exp(np.tile([0.0, 0.0, 0.2], (len(est), 1))), true[:, 3:7])
+    assert metrics.mpjpe_camera_mm(body, est, true) > 10.0
+    # 17 joints: the mean over 17 with the root at zero error, against a direct computation.
+    idx = metrics.h36m_joints(body)
+    assert len(idx) == 17 and idx[0] == 0
+    a = body_origins(body, est, "world")
+    b = body_origins(body, true, "world")
+    a, b = a - a[:, :1], b - b[:, :1]
+    expected = 1000.0 * np.mean(np.linalg.norm(a[:, idx] - b[:, idx], axis=-1))
+    assert metrics.mpjpe_camera_mm(body, est, true, idx) == pytest.approx(expected, rel=1e-12)
+
+
+def test_procrustes_alignment_against_a_numerical_optimum(rng):
+    from scipy.optimize import minimize
+
+    true = rng.normal(size=(1, 17, 3))
+    # A known similarity is undone exactly.
+    rot = to_matrix(exp(np.array([0.3, -1.0, 2.0])))
+    moved = 1.7 * true @ rot + np.array([1.0, -2.0, 0.5])
+    assert np.allclose(metrics.procrustes_align(moved, true), true, atol=1e-10)
+    # A noisy estimate: the closed form reaches the least-squares optimum over rotation, scale and translation.
+    est = moved + rng.normal(scale=0.2, size=moved.shape)
+    closed = np.sum((metrics.procrustes_align(est, true) - true) ** 2)
+
+    def cost(x):
+        return np.sum((np.exp(x[0]) * est[0] @ to_matrix(exp(x[1:4])) + x[4:] - true[0]) ** 2)
+
+    best = min((minimize(cost, np.concatenate([[0.0], rng.normal(size=3), np.zeros(3)]), method="BFGS")
+                for _ in range(8)), key=lambda r: r.fun)
+    assert closed == pytest.approx(best.fun, rel=1e-6)
+
+
+def test_log_p_true_is_the_log_posterior_clipped():
+    post = np.array([[0.5, 0.5, 0.0], [0.7, 0.3, 0.0]])
+    assert metrics.log_p_true(post, ["a", "b", "c"], "b") == pytest.approx(np.log(0.3))
+    assert metrics.log_p_true(post, ["a", "b", "c"], "c") == pytest.approx(np.log(metrics.LOG_P_FLOOR))

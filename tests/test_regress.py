@@ -11,7 +11,7 @@ from harness.evaluation import regress
 
 REPO = Path(__file__).resolve().parents[1]
 TOLERANCES = REPO / "results" / "baseline" / "tolerances.yaml"
-STORED = {"full/correct": 0.75, "full/mpjpe_rel_mm": 80.0, "full/ms_per_frame": 30.0, "gt_base/correct": 0.9,
+STORED = {"full/correct": 0.75, "full/mpjpe_cam_mm": 80.0, "full/ms_per_frame": 30.0, "gt_base/correct": 0.9,
           "full/base_pos_err_m": 0.10}
 
 
@@ -42,12 +42,12 @@ def test_passes_on_the_stored_summary(setup, capsys):
     _, args = setup
     assert main(["regress", *args]) == 0
     out = capsys.readouterr().out
-    assert "no regression" in out and "full/mpjpe_rel_mm" in out and "timing" in out
+    assert "no regression" in out and "full/mpjpe_cam_mm" in out and "timing" in out
 
 
 @pytest.mark.parametrize("changes, failing", [
     ({"full__correct": 0.60}, "full/correct"),                # 15 points down (10 allowed)
-    ({"full__mpjpe_rel_mm": 80.0 * 1.15 + 5.0 + 0.1}, "full/mpjpe_rel_mm"),
+    ({"full__mpjpe_cam_mm": 80.0 * 1.15 + 5.0 + 0.1}, "full/mpjpe_cam_mm"),
     ({"gt_base__correct": float("nan")}, "gt_base/correct"),  # a metric that disappeared
 ])
 def test_fails_on_a_doctored_summary(setup, capsys, changes, failing):
@@ -62,7 +62,7 @@ def test_fails_on_a_doctored_summary(setup, capsys, changes, failing):
 
 def test_within_tolerance_and_timing_are_not_gated(setup):
     path, args = setup
-    _doctor(path, full__correct=0.71, full__mpjpe_rel_mm=80.0 * 1.15 + 4.9, full__ms_per_frame=300.0,
+    _doctor(path, full__correct=0.71, full__mpjpe_cam_mm=80.0 * 1.15 + 4.9, full__ms_per_frame=300.0,
             full__base_pos_err_m=0.05)
     assert main(["regress", *args]) == 0
 

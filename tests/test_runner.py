@@ -35,7 +35,7 @@ def fake_run(run: runner.RunSpec) -> list[dict]:
         rows.append({"method": method, "class_true": run.test_class, "class_pred": pred, "correct": int(right),
                      "frame_accuracy": float(rng.uniform(0.3, 1.0)),
                      "time_to_correct_s": float(rng.uniform(0, 2)) if right else float("nan"),
-                     "angle_rms_deg": float(rng.gamma(4, 2)), "mpjpe_rel_mm": float(rng.gamma(9, 8)),
+                     "angle_rms_deg": float(rng.gamma(4, 2)), "mpjpe_cam_mm": float(rng.gamma(9, 8)),
                      "mpjpe_abs_mm": float(rng.gamma(9, 20)), "base_pos_err_m": float(rng.gamma(3, 0.05)),
                      "base_depth_err_m": float(rng.gamma(2, 0.05)), "base_rot_err_deg": float(rng.gamma(3, 3)),
                      "reproj_px": float(rng.gamma(3, 1)), "ms_per_frame": 12.5,
@@ -90,7 +90,7 @@ def test_rows_carry_identity_and_are_sorted(tiny, tmp_path):
     assert list(table["run_key"]) == sorted(table["run_key"])
     assert (tmp_path / "tiny" / "runs.csv").is_file()
     rows = pd.read_csv(tmp_path / "tiny" / "runs.csv")
-    assert np.allclose(rows["mpjpe_rel_mm"], table["mpjpe_rel_mm"])
+    assert np.allclose(rows["mpjpe_cam_mm"], table["mpjpe_cam_mm"])
 
 
 def test_parallel_equals_serial(tiny, tmp_path):

@@ -56,10 +56,10 @@ def test_summary_cells_against_numpy(rows):
     summ = tables.summary(rows, ["markers.count", "occluders.amount"], n_boot=500)
     cond = rows["condition"].iloc[0]
     g = rows[(rows["condition"] == cond) & (rows["method"] == "full")]
-    cell = summ[(summ["condition"] == cond) & (summ["method"] == "full") & (summ["metric"] == "mpjpe_rel_mm")]
+    cell = summ[(summ["condition"] == cond) & (summ["method"] == "full") & (summ["metric"] == "mpjpe_cam_mm")]
     assert cell["n"].item() == len(g) == 6
-    assert cell["mean"].item() == pytest.approx(g["mpjpe_rel_mm"].mean())
-    assert cell["std"].item() == pytest.approx(g["mpjpe_rel_mm"].std(ddof=1))
+    assert cell["mean"].item() == pytest.approx(g["mpjpe_cam_mm"].mean())
+    assert cell["std"].item() == pytest.approx(g["mpjpe_cam_mm"].std(ddof=1))
     assert cell["ci_lo"].item() < cell["mean"].item() < cell["ci_hi"].item()
     ttc = summ[(summ["metric"] == "time_to_correct_s")]
     assert (ttc["n"] <= 6).all()                     # NaN (never correct) is left out of the mean
@@ -111,6 +111,6 @@ def test_pooled_metrics_are_means_over_runs(rows):
     pooled = tables.pooled_metrics(rows)
     full = rows[rows["method"] == "full"]
     assert pooled["full/correct"] == pytest.approx(full["correct"].mean())
-    assert pooled["no_database/mpjpe_rel_mm"] == pytest.approx(rows.loc[rows["method"] == "no_database",
-                                                                        "mpjpe_rel_mm"].mean())
+    assert pooled["no_database/mpjpe_cam_mm"] == pytest.approx(rows.loc[rows["method"] == "no_database",
+                                                                        "mpjpe_cam_mm"].mean())
     assert "full/n_frames" not in pooled

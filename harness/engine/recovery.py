@@ -27,9 +27,11 @@ from harness.pinhole import Intrinsics, project, projection_jacobian
 def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows: np.ndarray, resp: np.ndarray,
                 angles0: np.ndarray, angle_std: np.ndarray, position0: np.ndarray, rot0: np.ndarray,
                 position_std: np.ndarray, rotation_std: float, noise_px: float, spread: float,
-                iterations: int = 3, damping: float = 1e-3, start: tuple | None = None
+                iterations: int = 3, damping: float = 1e-3, start: tuple | None = None, fix_pose: bool = False
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Refine angles ``(50,)`` and the base pose (camera frame) to the observed flow positions.
+
+    ``fix_pose``: the base pose is given (the ground-truth-pose baseline) and only the angles move.
 
     ``resp`` ``(M, P)``: soft assignment of the ``M`` flows to the ``P`` model points. The prior is centred
     on ``angles0``, ``position0``, ``rot0``; the steps start from ``start`` (angles, position, rotation) when
@@ -69,7 +71,9 @@ def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows:
         A[np.diag_indices_from(A)] += prior_prec
         b -= prior_prec * offset
         A[np.diag_indices_from(A)] *= 1.0 + damping
-        step = np.linalg.solve(A, b)
+        step = np.zeros(56)
+        free = slice(0, 50) if fix_pose else slice(0, 56)
+        step[free] = np.linalg.solve(A[free, free], b[free])
         angles = np.clip(angles + step[:50], body.lower, body.upper)
         pos = pos + step[50:53]
         rot = rot @ geometry.to_matrix(geometry.exp(step[53:]))

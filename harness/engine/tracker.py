@@ -143,7 +143,7 @@ class Tracker:
         self.recognizer = Recognizer(self.db, self.config.start_spread, self.config.prune)
         self._started = False
         self._rows: list[tuple] = []
-        self._pending = 0
+        self._pending: list = []      # given poses (or None) of frames before the first flows
         self._timing = {"filter": 0.0, "recognition": 0.0, "recovery": 0.0}
 
     def step(self, flows: np.ndarray, camera_motion: np.ndarray | None = None,
@@ -153,7 +153,7 @@ class Tracker:
         t0 = time.perf_counter()
         if not self._started:
             if len(flows) == 0:
-                self._pending += 1
+                self._pending.append(pose)
                 return
             # A cloud init_factor times wider than the working size, narrowed by the first frame's flows.
             n = self.filter.n
@@ -235,29 +235,29 @@ class Tracker:
                 # M-step: Gauss-Newton on angles and pose under the HMM prior and the filter's spread.
                 angles, pos_r, rot_r = refine_pose(self.body, self.points, self.intr, flows, resp, theta0,
                                                    np.sqrt(var), pos, rot, spread, 0.3, cfg.noise_px,
-                                                   self.spread, cfg.refine_iterations, start=(angles, pos_r, rot_r))
+                                                   self.spread, cfg.refine_iterations, start=(angles, pos_r, rot_r),
+                                                   fix_pose=pose is not None)
             if pose is None:
                 self.filter.inject(pos_r, geometry.from_matrix(rot_r), cfg.inject_fraction, 0.5 * spread, 0.05)
                 self.filter.inject_jumps(cfg.jump_fraction)
-            else:
-                pos_r, rot_r = pos, rot
         t4 = time.perf_counter()
         self._timing["filter"] += t2 - t1
         self._timing["recognition"] += t3 - t2
         self._timing["recovery"] += t4 - t3
         row = (np.concatenate([pos_r, geometry.from_matrix(rot_r), angles]), cls_post, pos, quat,
                1e3 * (t4 - t0))
-        for _ in range(self._pending):   # frames before the first flows take the first estimate
-            self._rows.append(row[:4] + (0.0,))
-        self._pending = 0
+        for given in self._pending:   # frames before the first flows take the first estimate (or their pose)
+            first = row[0] if given is None else np.concatenate([given[0], given[1], row[0][7:]])
+            self._rows.append((first,) + row[1:4] + (0.0,))
+        self._pending = []
         self._rows.append(row)
 
     def result(self) -> Estimate:
         if not self._rows:
             raise EngineError("no frame had any flow: nothing to estimate")
-        for _ in range(self._pending):
+        for _ in self._pending:
             self._rows.append(self._rows[-1][:4] + (0.0,))
-        self._pending = 0
+        self._pending = []
         qpos, post, fpos, fquat, ms = (np.array(x) for x in zip(*self._rows))
         n = max(len(self._rows), 1)
         return Estimate(self.db.classes_.copy(), qpos, post, fpos, fquat, ms,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from harness.body import BodyModel, SurfacePoints, body_origins, forward_points
-from harness.geometry import angle_between
+from harness.geometry import angle_between, conjugate, from_matrix, multiply
 from harness.pinhole import Intrinsics, project
 
 
@@ -46,11 +46,35 @@ def angle_rms_deg(est_angles: np.ndarray, true_angles: np.ndarray) -> float:
     return float(np.rad2deg(np.sqrt(np.mean(d**2))))
 
 
-def mpjpe_relative_mm(body: BodyModel, est_qpos: np.ndarray, true_qpos: np.ndarray) -> float:
-    """Root-relative mean per-joint position error, millimetres.
+# Human3.6M's 17 joints (protocol order) on humanoid56 bodies: hip, right leg, left leg, spine, thorax, neck,
+# head, left arm, right arm. Human3.6M's "spine" sits between hip and thorax (upperback, 0.19 m above the
+# pelvis at the zero pose), its "thorax" at the neck's base (lowerneck), "neck/nose" at upperneck, "head" at the
+# head body's origin.
+H36M_BODIES = ("pelvis", "rfemur", "rtibia", "rfoot", "lfemur", "ltibia", "lfoot", "upperback", "lowerneck",
+               "upperneck", "head", "lhumerus", "lradius", "lwrist", "rhumerus", "rradius", "rwrist")
+LOG_P_FLOOR = 1e-15     # log_p_true is clipped at log(1e-15) = -34.5, as scikit-learn's log loss does
 
-    Joint centres in the base frame (``frame='base'``: the base pose is factored out, so only the angles
-    matter); the root itself (always at the origin) is left out of the mean.
+
+def h36m_joints(body: BodyModel) -> np.ndarray:
+    """Indices ``(17,)`` into ``body_origins``'s joint axis (0 = root) of the Human3.6M joints."""
+    return np.array([body.body_id(name) - 1 for name in H36M_BODIES])
+
+
+def log_p_true(posteriors: np.ndarray, classes: list[str] | tuple[str, ...], true_label: str) -> float:
+    """Natural log of the last frame's posterior of the true class, clipped at ``log(LOG_P_FLOOR)``: a
+    continuous score beside the 0/1 accuracy (0 = certain and right)."""
+    post = np.asarray(posteriors, dtype=float)
+    if true_label not in classes:
+        raise ValueError(f"true label {true_label!r} is not one of the classes {list(classes)}")
+    return float(np.log(max(post[-1, list(classes).index(true_label)], LOG_P_FLOOR)))
+
+
+def mpjpe_pose_mm(body: BodyModel, est_qpos: np.ndarray, true_qpos: np.ndarray) -> float:
+    """Pose-only mean per-joint position error, millimetres.
+
+    Joint centres in the base (pelvis) frame: the base pose is factored out, so only the angles matter and a
+    body estimated facing backwards with the right angles scores 0. The root (always at the origin) is left
+    out of the mean.
     """
     est = body_origins(body, est_qpos, frame="base")[..., 1:, :]
     true = body_origins(body, true_qpos, frame="base")[..., 1:, :]
@@ -72,6 +96,49 @@ def mpjpe_absolute_mm(body: BodyModel, est_qpos_cam: np.ndarray, true_qpos_cam: 
     return float(1000.0 * np.mean(np.linalg.norm(est - true, axis=-1)))
 
 
+def mpjpe_camera_mm(body: BodyModel, est_qpos_cam: np.ndarray, true_qpos_cam: np.ndarray,
+                    joints: np.ndarray | None = None) -> float:
+    """Human3.6M protocol 1, millimetres: joint centres in the camera frame with each skeleton's root
+    (pelvis) subtracted, so the base orientation counts and the base translation does not.
+
+    ``joints``: indices into the joint axis (default: every non-root joint, 24). With ``h36m_joints`` the
+    mean runs over the 17 joints, the root included at zero error, as Human3.6M's evaluation code does.
+    """
+    est = body_origins(body, est_qpos_cam, frame="world")
+    true = body_origins(body, true_qpos_cam, frame="world")
+    est, true = est - est[..., :1, :], true - true[..., :1, :]
+    sel = np.arange(1, est.shape[-2]) if joints is None else np.asarray(joints)
+    return float(1000.0 * np.mean(np.linalg.norm(est[..., sel, :] - true[..., sel, :], axis=-1)))
+
+
+def procrustes_align(est: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """Per frame, the similarity transform (rotation, uniform scale, translation) of ``est`` ``(T, J, 3)`` that
+    best fits ``true`` in least squares (Umeyama, 1991; reflections excluded); returns the aligned ``est``."""
+    est, true = np.asarray(est, dtype=float), np.asarray(true, dtype=float)
+    mu_e, mu_t = est.mean(axis=-2, keepdims=True), true.mean(axis=-2, keepdims=True)
+    e, t = est - mu_e, true - mu_t
+    u, s, vt = np.linalg.svd(np.swapaxes(e, -1, -2) @ t)          # H = E^T T = U S V^T
+    d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)))
+    s[..., -1] *= d
+    u[..., :, -1] *= d[..., None]
+    rot = u @ vt                                                    # row-vector form: aligned = e @ rot
+    scale = s.sum(axis=-1) / np.maximum(np.sum(e * e, axis=(-2, -1)), 1e-300)
+    return scale[..., None, None] * (e @ rot) + mu_t
+
+
+def pa_mpjpe_mm(body: BodyModel, est_qpos_cam: np.ndarray, true_qpos_cam: np.ndarray,
+                joints: np.ndarray | None = None) -> float:
+    """Human3.6M protocol 2, millimetres: mean joint error after a per-frame similarity Procrustes alignment
+    of the estimated joints onto the true ones, over ``joints`` (default: all 25 joint centres, root
+    included; ``h36m_joints`` for the 17)."""
+    est = body_origins(body, est_qpos_cam, frame="world")
+    true = body_origins(body, true_qpos_cam, frame="world")
+    if joints is not None:
+        est, true = est[..., joints, :], true[..., joints, :]
+    est, true = est.reshape(-1, *est.shape[-2:]), true.reshape(-1, *true.shape[-2:])
+    return float(1000.0 * np.mean(np.linalg.norm(procrustes_align(est, true) - true, axis=-1)))
+
+
 def base_errors(est_pos: np.ndarray, est_quat: np.ndarray, true_pos: np.ndarray, true_quat: np.ndarray) -> dict:
     """Baselink errors averaged over frames: ``base_pos_err_m`` (Euclidean, m), ``base_depth_err_m`` (absolute
     camera-z difference, m) and ``base_rot_err_deg`` (angle of the relative rotation, degrees).
@@ -83,6 +150,28 @@ def base_errors(est_pos: np.ndarray, est_quat: np.ndarray, true_pos: np.ndarray,
     return {"base_pos_err_m": float(np.mean(np.linalg.norm(d, axis=-1))),
             "base_depth_err_m": float(np.mean(np.abs(d[..., 2]))),
             "base_rot_err_deg": float(np.rad2deg(np.mean(rot)))}
+
+
+def heading_tilt_errors(est_quat_cam: np.ndarray, true_quat_cam: np.ndarray, camera_rot: np.ndarray) -> dict:
+    """The baselink orientation error split about the world vertical, degrees averaged over frames.
+
+    With world orientations ``R = C R_cam`` (``camera_rot`` ``(T, 3, 3)``: world from camera), the relative
+    rotation ``D = R_est R_true^T`` (world frame) is decomposed as ``D = D_swing D_twist`` with ``D_twist`` a
+    rotation about world z: ``heading_err_deg`` is the angle of the twist (the yaw error, in [0, 180]),
+    ``tilt_err_deg`` that of the swing (the error of the body's up axis).
+    """
+    cam = from_matrix(np.asarray(camera_rot, dtype=float))
+    est_w = multiply(cam, np.asarray(est_quat_cam, dtype=float))
+    true_w = multiply(cam, np.asarray(true_quat_cam, dtype=float))
+    rel = multiply(est_w, conjugate(true_w))
+    # Twist about z: the quaternion's scalar and z parts, renormalised (at a half-turn swing it is undefined
+    # and taken as no twist). The swing D twist^-1 then has scalar part hypot(w, z) and vector norm
+    # hypot(x, y); atan2 keeps both angles accurate near zero.
+    w, x, y, z = np.moveaxis(rel, -1, 0)
+    twist_angle = 2.0 * np.arctan2(np.abs(z), np.abs(w))
+    swing_angle = 2.0 * np.arctan2(np.hypot(x, y), np.hypot(w, z))
+    return {"heading_err_deg": float(np.rad2deg(np.mean(twist_angle))),
+            "tilt_err_deg": float(np.rad2deg(np.mean(swing_angle)))}
 
 
 def reprojection_px(body: BodyModel, est_qpos_cam: np.ndarray, markers: SurfacePoints, intrinsics: Intrinsics,

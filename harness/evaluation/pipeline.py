@@ -149,9 +149,16 @@ def _tracker(cfg: Scenario, db: MotionDatabase) -> Tracker:
     return _MEMO[key]
 
 
-_NAN_RECOGNITION = {"class_pred": "", "correct": np.nan, "frame_accuracy": np.nan, "time_to_correct_s": np.nan}
-_NAN_RECOVERY = {"angle_rms_deg": np.nan, "mpjpe_rel_mm": np.nan, "mpjpe_abs_mm": np.nan, "base_pos_err_m": np.nan,
-                 "base_depth_err_m": np.nan, "base_rot_err_deg": np.nan, "reproj_px": np.nan}
+_NAN_RECOGNITION = {"class_pred": "", "correct": np.nan, "frame_accuracy": np.nan, "time_to_correct_s": np.nan,
+                    "log_p_true": np.nan}
+_NAN_RECOVERY = {k: np.nan for k in (
+    "angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", "pa_mpjpe_mm", "pa_mpjpe17_mm",
+    "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m", "base_rot_err_deg", "heading_err_deg", "tilt_err_deg",
+    "reproj_px")}
+
+
+def _recognition_scores(post: np.ndarray, classes: list[str], label: str, fps: float) -> dict:
+    return metrics.recognition(post, classes, label, fps) | {"log_p_true": metrics.log_p_true(post, classes, label)}
 
 
 def _recovery_scores(body, qpos_est, truth, obs) -> dict:
@@ -160,12 +167,18 @@ def _recovery_scores(body, qpos_est, truth, obs) -> dict:
     marker = np.concatenate(truth.marker_ids).astype(int)
     uv = np.concatenate([f[:, :2] for f in obs.flows])
     keep = marker >= 0
+    h36m = metrics.h36m_joints(body)
     out = {"angle_rms_deg": metrics.angle_rms_deg(qpos_est[:, 7:], truth.qpos[:, 7:]),
-           "mpjpe_rel_mm": metrics.mpjpe_relative_mm(body, qpos_est, true_cam),
+           "mpjpe_pose_mm": metrics.mpjpe_pose_mm(body, qpos_est, true_cam),
+           "mpjpe_cam_mm": metrics.mpjpe_camera_mm(body, qpos_est, true_cam),
+           "mpjpe_cam17_mm": metrics.mpjpe_camera_mm(body, qpos_est, true_cam, h36m),
+           "pa_mpjpe_mm": metrics.pa_mpjpe_mm(body, qpos_est, true_cam),
+           "pa_mpjpe17_mm": metrics.pa_mpjpe_mm(body, qpos_est, true_cam, h36m),
            "mpjpe_abs_mm": metrics.mpjpe_absolute_mm(body, qpos_est, true_cam),
            "reproj_px": metrics.reprojection_px(body, qpos_est, truth.markers, obs.intrinsics, frame[keep],
                                                 marker[keep], uv[keep])}
     out |= metrics.base_errors(qpos_est[:, :3], qpos_est[:, 3:7], truth.base_pos_cam, truth.base_quat_cam)
+    out |= metrics.heading_tilt_errors(qpos_est[:, 3:7], truth.base_quat_cam, truth.camera_rot)
     return out
 
 
@@ -195,7 +208,7 @@ def run_one(run: RunSpec) -> list[dict]:
                 scores = dict(_NAN_RECOGNITION) | dict(_NAN_RECOVERY)
             else:
                 est = tracker.run(obs, base_pose=pose)
-                scores = metrics.recognition(est.class_posterior, classes, run.test_class, obs.fps)
+                scores = _recognition_scores(est.class_posterior, classes, run.test_class, obs.fps)
                 scores |= _recovery_scores(body, est.qpos, truth, obs)
         elif method == "no_database":
             tracker = _tracker(cfg, db)
@@ -205,7 +218,7 @@ def run_one(run: RunSpec) -> list[dict]:
             scores = dict(_NAN_RECOGNITION) | _recovery_scores(body, qpos, truth, obs)
         elif method == "joint_space":
             post = recognize_features(db, motion_features(motion))
-            scores = metrics.recognition(post, classes, run.test_class, motion.fps) | dict(_NAN_RECOVERY)
+            scores = _recognition_scores(post, classes, run.test_class, motion.fps) | dict(_NAN_RECOVERY)
         else:
             raise RunError(f"run {run.key}: unknown method {method!r}")
         ms = 1e3 * (time.perf_counter() - t0) / max(len(obs), 1)

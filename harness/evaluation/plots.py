@@ -16,18 +16,20 @@ from harness.evaluation.stats import bootstrap_ci
 
 # What to draw against each sweepable key (anything else numeric gets the default pair).
 PLOT_METRICS: dict[str, tuple[str, ...]] = {
-    "occluders.amount": ("correct", "frame_accuracy", "mpjpe_rel_mm"),
-    "markers.count": ("correct", "mpjpe_rel_mm", "angle_rms_deg", "base_pos_err_m"),
-    "observation.noise_px": ("correct", "mpjpe_rel_mm", "base_pos_err_m", "reproj_px"),
-    "observation.dropout": ("correct", "mpjpe_rel_mm"),
-    "observation.outliers": ("correct", "mpjpe_rel_mm"),
-    "camera.azimuth": ("correct", "mpjpe_rel_mm", "base_pos_err_m", "base_rot_err_deg"),
-    "camera.elevation": ("correct", "mpjpe_rel_mm", "base_pos_err_m", "base_rot_err_deg"),
-    "camera.distance": ("correct", "mpjpe_rel_mm", "base_depth_err_m"),
-    "engine.particles": ("correct", "base_pos_err_m", "mpjpe_rel_mm", "ms_per_frame"),
+    "occluders.amount": ("correct", "frame_accuracy", "mpjpe_cam_mm"),
+    "markers.count": ("correct", "mpjpe_cam_mm", "angle_rms_deg", "base_pos_err_m"),
+    "observation.noise_px": ("correct", "mpjpe_cam_mm", "base_pos_err_m", "reproj_px"),
+    "observation.dropout": ("correct", "mpjpe_cam_mm"),
+    "observation.outliers": ("correct", "mpjpe_cam_mm"),
+    "camera.azimuth": ("correct", "mpjpe_cam_mm", "base_pos_err_m", "heading_err_deg"),
+    "camera.elevation": ("correct", "mpjpe_cam_mm", "base_pos_err_m", "heading_err_deg"),
+    "camera.distance": ("correct", "mpjpe_cam_mm", "base_depth_err_m"),
+    "engine.particles": ("correct", "base_pos_err_m", "mpjpe_cam_mm", "ms_per_frame"),
 }
-DEFAULT_METRICS = ("correct", "mpjpe_rel_mm")
-LABELS = {"correct": "accuracy", "frame_accuracy": "per-frame accuracy", "mpjpe_rel_mm": "MPJPE rel. (mm)",
+DEFAULT_METRICS = ("correct", "mpjpe_cam_mm")
+LABELS = {"correct": "accuracy", "frame_accuracy": "per-frame accuracy", "mpjpe_cam_mm": "MPJPE camera frame (mm)",
+          "mpjpe_pose_mm": "MPJPE pose only (mm)", "pa_mpjpe_mm": "PA-MPJPE (mm)",
+          "heading_err_deg": "heading error (deg)",
           "mpjpe_abs_mm": "MPJPE abs. (mm)", "angle_rms_deg": "joint angle RMS (deg)",
           "base_pos_err_m": "base position error (m)", "base_depth_err_m": "base depth error (m)",
           "base_rot_err_deg": "base rotation error (deg)", "reproj_px": "reprojection (px)",

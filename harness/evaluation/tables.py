@@ -19,15 +19,16 @@ from harness.evaluation.cache import stable_hash
 from harness.evaluation.stats import N_BOOT, bootstrap_ci, mcnemar_exact, wilcoxon_paired
 from harness.io import write_text_atomic
 
-RECOGNITION = ("correct", "frame_accuracy", "time_to_correct_s")
-RECOVERY = ("angle_rms_deg", "mpjpe_rel_mm", "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m",
-            "base_rot_err_deg", "reproj_px")
+RECOGNITION = ("correct", "frame_accuracy", "time_to_correct_s", "log_p_true")
+RECOVERY = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", "pa_mpjpe_mm", "pa_mpjpe17_mm",
+            "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m", "base_rot_err_deg", "heading_err_deg",
+            "tilt_err_deg", "reproj_px")
 SCENE = ("self_occlusion", "obstacle_occlusion", "n_frames", "mean_flows")
 TIMING = ("ms_per_frame",)
 METRICS = RECOGNITION + RECOVERY + SCENE + TIMING
 METHOD_ORDER = ("full", "gt_base", "no_database", "joint_space")
-HEADLINE = ("correct", "frame_accuracy", "time_to_correct_s", "angle_rms_deg", "mpjpe_rel_mm", "mpjpe_abs_mm",
-            "base_pos_err_m", "base_rot_err_deg", "reproj_px")
+HEADLINE = ("correct", "log_p_true", "mpjpe_cam_mm", "pa_mpjpe_mm", "mpjpe_pose_mm", "base_pos_err_m",
+            "heading_err_deg", "tilt_err_deg", "angle_rms_deg", "reproj_px")
 
 
 def _method_rank(m: str) -> int:
@@ -90,7 +91,7 @@ def confusion(rows: pd.DataFrame, classes: list[str]) -> dict[tuple[str, str], p
 
 def paired_tests(rows: pd.DataFrame, reference: str = "full") -> pd.DataFrame:
     """Per condition, ``reference`` against every other method over the same runs: exact McNemar on final
-    recognition, Wilcoxon signed-rank on root-relative MPJPE (where both methods produce it)."""
+    recognition, Wilcoxon signed-rank on camera-frame MPJPE (protocol 1) (where both methods produce it)."""
     out = []
     for cond, g in rows.groupby("condition", sort=False):
         wide = {m: s.set_index("run_key") for m, s in g.groupby("method")}
@@ -108,11 +109,11 @@ def paired_tests(rows: pd.DataFrame, reference: str = "full") -> pd.DataFrame:
                             "metric": "correct", "n_pairs": mc["n_pairs"],
                             "effect": f"{reference} only right {mc['a_only']}, {other} only right {mc['b_only']}",
                             "p_value": mc["p_value"]})
-            if "mpjpe_rel_mm" in ref and "mpjpe_rel_mm" in o:
-                w = wilcoxon_paired(ref.loc[common, "mpjpe_rel_mm"], o.loc[common, "mpjpe_rel_mm"])
+            if "mpjpe_cam_mm" in ref and "mpjpe_cam_mm" in o:
+                w = wilcoxon_paired(ref.loc[common, "mpjpe_cam_mm"], o.loc[common, "mpjpe_cam_mm"])
                 if w["n_pairs"]:
                     out.append({"condition": cond, "comparison": f"{reference} vs {other}",
-                                "test": "Wilcoxon signed-rank", "metric": "mpjpe_rel_mm", "n_pairs": w["n_pairs"],
+                                "test": "Wilcoxon signed-rank", "metric": "mpjpe_cam_mm", "n_pairs": w["n_pairs"],
                                 "effect": f"median difference {_fmt(w['median_diff'])} mm",
                                 "p_value": w["p_value"]})
     return pd.DataFrame(out)
