@@ -16,6 +16,11 @@ File format (``.npz``, no pickled objects), so that flows from real video can be
 | ``fps`` | ``()`` float | frame rate |
 | ``intrinsics`` | ``(6,)`` float | ``[width, height, fx, fy, cx, cy]`` (see ``harness.pinhole``) |
 | ``camera_motion`` | ``(T, 6)`` float, optional | camera linear (m/s) and angular (rad/s) velocity in its own frame |
+| ``gravity`` | ``(T, 3)`` float, optional | unit vector of gravity (down) in the camera frame, e.g. from an IMU |
+| ``camera_height`` | ``(T,)`` float, optional | the camera centre's height above the floor, metres (>= 0) |
+
+The last two are the camera prior: a robot's camera usually knows its own tilt, and often its height. The
+engine uses them when present and works without them.
 """
 
 from __future__ import annotations
@@ -25,13 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.errors import HarnessError
+from harness.errors import EngineError
 from harness.io import save_npz_atomic
 from harness.pinhole import Intrinsics
 
 
-class ObservationError(HarnessError):
-    """Observations that the engine cannot use (NaN, outside the image, malformed file)."""
+class ObservationError(EngineError):
+    """Observations that the engine cannot use (NaN, outside the image, a malformed camera prior or file)."""
 
 
 @dataclass
@@ -41,17 +46,22 @@ class Observation:
     fps: frames per second. intrinsics: the camera's pinhole intrinsics.
     flows: list of ``T`` arrays ``(M_t, 4)``: ``u, v`` (pixels), ``du, dv`` (pixels/s).
     camera_motion: ``(T, 6)`` camera velocity (linear m/s, angular rad/s, camera frame) or None (static).
+    gravity: ``(T, 3)`` unit gravity direction in the camera frame, or None (unknown tilt).
+    camera_height: ``(T,)`` camera height above the floor (m), or None (unknown).
     """
 
     fps: float
     intrinsics: Intrinsics
     flows: list[np.ndarray]
     camera_motion: np.ndarray | None = None
+    gravity: np.ndarray | None = None
+    camera_height: np.ndarray | None = None
 
     def __post_init__(self):
         self.flows = [np.asarray(f, dtype=float).reshape(-1, 4) for f in self.flows]
-        if self.camera_motion is not None:
-            self.camera_motion = np.asarray(self.camera_motion, dtype=float)
+        for name in ("camera_motion", "gravity", "camera_height"):
+            if getattr(self, name) is not None:
+                setattr(self, name, np.asarray(getattr(self, name), dtype=float))
 
     def __len__(self) -> int:
         return len(self.flows)
@@ -82,7 +92,33 @@ class Observation:
                                        f"got {self.camera_motion.shape}")
             if not np.isfinite(self.camera_motion).all():
                 raise ObservationError("camera_motion has NaN or infinite values")
+        self._validate_prior()
         return self
+
+    def _validate_prior(self) -> None:
+        T = len(self.flows)
+        if self.gravity is not None:
+            g = self.gravity
+            if g.shape != (T, 3):
+                raise ObservationError(f"gravity must have shape ({T}, 3), got {g.shape}")
+            if not np.isfinite(g).all():
+                raise ObservationError(f"gravity, frame {int(np.argmax(~np.isfinite(g).all(axis=1)))}: NaN or "
+                                       f"infinite values")
+            off = np.abs(np.linalg.norm(g, axis=1) - 1.0)
+            if off.max() > 1e-3:
+                t = int(np.argmax(off))
+                raise ObservationError(f"gravity, frame {t}: not a unit vector (norm {np.linalg.norm(g[t]):.4g})")
+        if self.camera_height is not None:
+            h = self.camera_height
+            if h.shape != (T,):
+                raise ObservationError(f"camera_height must have shape ({T},), got {h.shape}")
+            bad = ~np.isfinite(h) | (h < 0)
+            if bad.any():
+                t = int(np.argmax(bad))
+                raise ObservationError(f"camera_height, frame {t}: must be a finite height >= 0 m, got {h[t]}")
+            if self.gravity is None:
+                raise ObservationError("camera_height needs gravity: a height above the floor means nothing "
+                                       "without knowing which way is down")
 
     def save(self, path: str | Path) -> None:
         """Write the documented ``.npz`` format atomically."""
@@ -93,8 +129,9 @@ class Observation:
             "fps": np.array(float(self.fps)),
             "intrinsics": self.intrinsics.as_array(),
         }
-        if self.camera_motion is not None:
-            arrays["camera_motion"] = self.camera_motion
+        for name in ("camera_motion", "gravity", "camera_height"):
+            if getattr(self, name) is not None:
+                arrays[name] = getattr(self, name)
         save_npz_atomic(path, arrays)
 
     @classmethod
@@ -105,7 +142,8 @@ class Observation:
                 flows, frame = np.asarray(z["flows"], float), np.asarray(z["frame"], int)
                 n_frames, fps = int(z["n_frames"]), float(z["fps"])
                 intr = Intrinsics.from_array(z["intrinsics"])
-                motion = np.asarray(z["camera_motion"], float) if "camera_motion" in z.files else None
+                optional = {name: np.asarray(z[name], float) if name in z.files else None
+                            for name in ("camera_motion", "gravity", "camera_height")}
         except FileNotFoundError:
             raise ObservationError(f"{path}: no such observation file") from None
         except (KeyError, ValueError, OSError) as exc:
@@ -115,5 +153,5 @@ class Observation:
         if len(frame) and (frame.min() < 0 or frame.max() >= n_frames or np.any(np.diff(frame) < 0)):
             raise ObservationError(f"{path}: 'frame' indices must be non-decreasing and in [0, n_frames)")
         bounds = np.searchsorted(frame, np.arange(n_frames + 1))
-        return cls(fps, intr, [flows[bounds[t]:bounds[t + 1]] for t in range(n_frames)], motion)
+        return cls(fps, intr, [flows[bounds[t]:bounds[t + 1]] for t in range(n_frames)], **optional)
 

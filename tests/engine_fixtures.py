@@ -8,7 +8,7 @@ import numpy as np
 
 from harness import geometry
 from harness.body import forward_points, sample_surface
-from harness.engine.particle_filter import upright_orientations
+from harness.engine.particle_filter import camera_pitch, upright_orientations
 from harness.motion import Motion
 from harness.observation import Observation
 from harness.pinhole import Intrinsics, project
@@ -67,7 +67,7 @@ def synthetic_observation(body, motion, rng, n_markers=100, noise_px=1.0, distan
     heading = rng.uniform(-np.pi, np.pi) if heading is None else heading
     markers = sample_surface(body, n_markers, rng)
     # Camera frame from a body-relative placement: the body's world pose composed with a fixed camera pose.
-    cam_from_world = geometry.to_matrix(upright_orientations(np.array([heading]), np.array([0.0])))[0]
+    cam_from_world = geometry.to_matrix(upright_orientations(np.array([heading]), camera_pitch(0.0)))[0]
     centre = motion.base_pos.mean(axis=0) * np.array([1, 1, 0]) + np.array([0, 0, 1.0])
     world = forward_points(body, motion.qpos, markers.body, markers.local)
     normals = forward_points(body, motion.qpos, markers.body, markers.local + markers.normal) - world

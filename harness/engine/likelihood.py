@@ -27,63 +27,92 @@ import numpy as np
 
 from harness.engine.transform import ImageDistributions
 
-_GATE = 60.0   # squared Mahalanobis distance in position beyond which a point's term is negligible
+_GATE = 60.0   # squared Mahalanobis distance in position beyond which a point's term is taken as zero
 
 
-@numba.njit(cache=True, fastmath=False)
-def _flow_loglik_kernel(flows, pix, pix_icov, flow, flow_icov, log_norm, log_in, log_out, weight_iterations,
-                        smoothing):
+@numba.njit(cache=True)
+def _densities(flows, pix, pix_icov, flow, flow_icov, log_norm, dens):
+    """``dens[m, p]``: the Gaussian density of flow ``m`` under point ``p`` of one hypothesis (position and
+    velocity), zero beyond the position gate or for an invisible point (``log_norm = -inf``)."""
+    M, P = dens.shape
+    for m in range(M):
+        u, v, du, dv = flows[m, 0], flows[m, 1], flows[m, 2], flows[m, 3]
+        for p in range(P):
+            dens[m, p] = 0.0
+            c = log_norm[p]
+            if c == -np.inf:
+                continue
+            a = u - pix[p, 0]
+            b = v - pix[p, 1]
+            d2 = pix_icov[p, 0] * a * a + 2.0 * pix_icov[p, 1] * a * b + pix_icov[p, 2] * b * b
+            if d2 > _GATE:
+                continue
+            a = du - flow[p, 0]
+            b = dv - flow[p, 1]
+            d2 += flow_icov[p, 0] * a * a + 2.0 * flow_icov[p, 1] * a * b + flow_icov[p, 2] * b * b
+            dens[m, p] = np.exp(c - 0.5 * d2)
+
+
+@numba.njit(cache=True)
+def _mixture_weights(dens, prior, p_in, p_out, iterations, smoothing, weight, mass):
+    """The points' mixture weights: ``prior`` (visibility, normalised) adapted by ``iterations`` EM steps to
+    the flows, shrunk towards the prior by ``smoothing`` pseudo-flows. Points that explain no flow (hidden
+    by an obstacle the engine cannot know of) give their mass to the points that do."""
+    M, P = dens.shape
+    for p in range(P):
+        weight[p] = prior[p]
+    for _ in range(iterations):
+        for p in range(P):
+            mass[p] = 0.0
+        for m in range(M):
+            total = 0.0
+            for p in range(P):
+                total += weight[p] * dens[m, p]
+            denom = p_in * total + p_out
+            if denom <= 0.0:
+                continue
+            for p in range(P):
+                mass[p] += p_in * weight[p] * dens[m, p] / denom
+        norm = 0.0
+        for p in range(P):
+            norm += mass[p]
+        for p in range(P):
+            weight[p] = (mass[p] + smoothing * prior[p]) / (norm + smoothing)
+
+
+@numba.njit(cache=True)
+def _prior(log_norm, visibility, prior):
+    """Visibility-proportional prior weights; returns False when no point is visible."""
+    total = 0.0
+    for p in range(len(prior)):
+        prior[p] = visibility[p] if log_norm[p] > -np.inf else 0.0
+        total += prior[p]
+    if total <= 0.0:
+        return False
+    for p in range(len(prior)):
+        prior[p] /= total
+    return True
+
+
+@numba.njit(cache=True)
+def _flow_loglik_kernel(flows, pix, pix_icov, flow, flow_icov, log_norm, visibility, log_in, log_out,
+                        weight_iterations, smoothing):
     H, P = log_norm.shape
     M = flows.shape[0]
     out = np.empty((H, M))
     dens = np.zeros((M, P))
     weight = np.empty(P)
     mass = np.empty(P)
+    prior = np.empty(P)
     p_in = np.exp(log_in)
     p_out = np.exp(log_out)
     for h in range(H):
-        n_facing = 0
-        for p in range(P):
-            if log_norm[h, p] > -np.inf:
-                n_facing += 1
-        for m in range(M):
-            u, v, du, dv = flows[m, 0], flows[m, 1], flows[m, 2], flows[m, 3]
-            for p in range(P):
-                dens[m, p] = 0.0
-                c = log_norm[h, p]
-                if c == -np.inf:
-                    continue
-                a = u - pix[h, p, 0]
-                b = v - pix[h, p, 1]
-                d2 = pix_icov[h, p, 0] * a * a + 2.0 * pix_icov[h, p, 1] * a * b + pix_icov[h, p, 2] * b * b
-                if d2 > _GATE:
-                    continue
-                a = du - flow[h, p, 0]
-                b = dv - flow[h, p, 1]
-                d2 += flow_icov[h, p, 0] * a * a + 2.0 * flow_icov[h, p, 1] * a * b + flow_icov[h, p, 2] * b * b
-                dens[m, p] = np.exp(c - 0.5 * d2)
-        for p in range(P):
-            weight[p] = 1.0 / max(n_facing, 1) if log_norm[h, p] > -np.inf else 0.0
-        # EM on the mixture weights: points that explain no flow (hidden by an obstacle or by the body) lose
-        # weight, shrunk towards uniform by `smoothing` pseudo-flows.
-        for _ in range(weight_iterations):
-            for p in range(P):
-                mass[p] = 0.0
+        if not _prior(log_norm[h], visibility[h], prior):
             for m in range(M):
-                total = 0.0
-                for p in range(P):
-                    total += weight[p] * dens[m, p]
-                denom = p_in * total + p_out
-                if denom <= 0.0:
-                    continue
-                for p in range(P):
-                    mass[p] += p_in * weight[p] * dens[m, p] / denom
-            norm = 0.0
-            for p in range(P):
-                norm += mass[p]
-            for p in range(P):
-                if log_norm[h, p] > -np.inf:
-                    weight[p] = (mass[p] + smoothing / n_facing) / (norm + smoothing)
+                out[h, m] = log_out
+            continue
+        _densities(flows, pix[h], pix_icov[h], flow[h], flow_icov[h], log_norm[h], dens)
+        _mixture_weights(dens, prior, p_in, p_out, weight_iterations, smoothing, weight, mass)
         for m in range(M):
             total = 0.0
             for p in range(P):
@@ -97,6 +126,32 @@ def _flow_loglik_kernel(flows, pix, pix_icov, flow, flow_icov, log_norm, log_in,
     return out
 
 
+@numba.njit(cache=True)
+def _responsibilities_kernel(flows, pix, pix_icov, flow, flow_icov, log_norm, visibility, log_in, log_out,
+                             weight_iterations, smoothing):
+    P = log_norm.shape[0]
+    M = flows.shape[0]
+    resp = np.zeros((M, P))
+    prior = np.empty(P)
+    if not _prior(log_norm, visibility, prior):
+        return resp
+    dens = np.zeros((M, P))
+    weight = np.empty(P)
+    mass = np.empty(P)
+    p_in = np.exp(log_in)
+    p_out = np.exp(log_out)
+    _densities(flows, pix, pix_icov, flow, flow_icov, log_norm, dens)
+    _mixture_weights(dens, prior, p_in, p_out, weight_iterations, smoothing, weight, mass)
+    for m in range(M):
+        total = 0.0
+        for p in range(P):
+            total += weight[p] * dens[m, p]
+        denom = p_in * total + p_out
+        for p in range(P):
+            resp[m, p] = p_in * weight[p] * dens[m, p] / denom
+    return resp
+
+
 def _inverse_2x2(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Packed inverses ``(..., 3)`` as ``[a, b, c]`` of ``[[a, b], [b, c]]`` and log-determinants."""
     a, b, c = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
@@ -104,29 +159,35 @@ def _inverse_2x2(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([c / det, -b / det, a / det], axis=-1), np.log(det)
 
 
-def flow_log_likelihoods(flows: np.ndarray, img: ImageDistributions, noise_px: float, fps: float,
-                         width: int, height: int, outlier_prob: float = 0.05, max_flow: float | None = None,
-                         weight_iterations: int = 0, smoothing: float = 0.0) -> np.ndarray:
-    """``(H, M)`` log-likelihood of each flow ``(M, 4)`` under each hypothesis (see the module docstring).
-
-    Hypotheses with no facing point explain every flow as an outlier. ``weight_iterations`` EM steps adapt
-    the mixture weights of the model points to the flows (``smoothing``: pseudo-flows spread uniformly).
-    """
+def _packed(flows: np.ndarray, img: ImageDistributions, noise_px: float, fps: float, width: int, height: int,
+            outlier_prob: float, max_flow: float | None) -> tuple:
+    """The kernels' arguments: flows, packed inverse covariances, log normalisers (``-inf`` for invisible
+    points), visibility, and the log inlier and outlier terms."""
     flows = np.ascontiguousarray(flows, dtype=float).reshape(-1, 4)
     if max_flow is None:
         max_flow = 0.25 * max(width, height) * fps   # a quarter of the image per frame
     eye = np.eye(2)
     pix_icov, pix_logdet = _inverse_2x2(img.pix_cov + noise_px**2 * eye)
     flow_icov, flow_logdet = _inverse_2x2(img.flow_cov + 2.0 * (noise_px * fps) ** 2 * eye)
-    with np.errstate(divide="ignore"):
-        log_norm = -2.0 * np.log(2 * np.pi) - 0.5 * (pix_logdet + flow_logdet)
-    log_norm = np.where(img.facing, log_norm, -np.inf)
+    log_norm = -2.0 * np.log(2 * np.pi) - 0.5 * (pix_logdet + flow_logdet)
+    log_norm = np.where(img.visibility > 0, log_norm, -np.inf)
     log_out = np.log(outlier_prob) - np.log(width * height) - np.log(np.pi * max_flow**2)
     log_in = np.log1p(-outlier_prob)
-    return _flow_loglik_kernel(flows, np.ascontiguousarray(img.pix), np.ascontiguousarray(pix_icov),
-                               np.ascontiguousarray(img.flow), np.ascontiguousarray(flow_icov),
-                               np.ascontiguousarray(log_norm), log_in, log_out, int(weight_iterations),
-                               float(smoothing))
+    return (flows, np.ascontiguousarray(img.pix), np.ascontiguousarray(pix_icov), np.ascontiguousarray(img.flow),
+            np.ascontiguousarray(flow_icov), np.ascontiguousarray(log_norm),
+            np.ascontiguousarray(img.visibility, dtype=float), log_in, log_out)
+
+
+def flow_log_likelihoods(flows: np.ndarray, img: ImageDistributions, noise_px: float, fps: float,
+                         width: int, height: int, outlier_prob: float = 0.05, max_flow: float | None = None,
+                         weight_iterations: int = 0, smoothing: float = 0.0) -> np.ndarray:
+    """``(H, M)`` log-likelihood of each flow ``(M, 4)`` under each hypothesis (see the module docstring).
+
+    Hypotheses with no visible point explain every flow as an outlier. ``weight_iterations`` EM steps adapt
+    the mixture weights of the model points to the flows (``smoothing``: pseudo-flows spread by visibility).
+    """
+    return _flow_loglik_kernel(*_packed(flows, img, noise_px, fps, width, height, outlier_prob, max_flow),
+                               int(weight_iterations), float(smoothing))
 
 
 def tempered(per_flow: np.ndarray, n_eff: float) -> np.ndarray:
@@ -142,34 +203,8 @@ def responsibilities(flows: np.ndarray, img: ImageDistributions, noise_px: float
                      height: int, outlier_prob: float = 0.05, max_flow: float | None = None,
                      weight_iterations: int = 0, smoothing: float = 0.0) -> np.ndarray:
     """For one hypothesis: ``(M, P)`` posterior probability that flow ``m`` comes from model point ``p``
-    (rows sum to one minus the outlier probability), with the same weight adaptation as
-    ``flow_log_likelihoods``. Plain numpy: used once per frame by recovery."""
-    flows = np.asarray(flows, dtype=float).reshape(-1, 4)
-    if max_flow is None:
-        max_flow = 0.25 * max(width, height) * fps
-    eye = np.eye(2)
-    pix_icov, pix_logdet = _inverse_2x2(img.pix_cov[0] + noise_px**2 * eye)
-    flow_icov, flow_logdet = _inverse_2x2(img.flow_cov[0] + 2.0 * (noise_px * fps) ** 2 * eye)
-    facing = img.facing[0]
-    n_facing = max(int(facing.sum()), 1)
-    a = flows[:, None, :2] - img.pix[0][None]
-    b = flows[:, None, 2:] - img.flow[0][None]
-    d2 = (pix_icov[None, :, 0] * a[..., 0] ** 2 + 2 * pix_icov[None, :, 1] * a[..., 0] * a[..., 1]
-          + pix_icov[None, :, 2] * a[..., 1] ** 2
-          + flow_icov[None, :, 0] * b[..., 0] ** 2 + 2 * flow_icov[None, :, 1] * b[..., 0] * b[..., 1]
-          + flow_icov[None, :, 2] * b[..., 1] ** 2)
-    log_dens = (-2.0 * np.log(2 * np.pi) - 0.5 * (pix_logdet + flow_logdet))[None] - 0.5 * d2
-    log_dens = np.where(facing[None], log_dens, -np.inf)
-    log_out = np.log(outlier_prob) - np.log(width * height) - np.log(np.pi * max_flow**2)
-    weight = np.where(facing, 1.0 / n_facing, 0.0)
-    for it in range(weight_iterations + 1):
-        with np.errstate(divide="ignore"):
-            log_term = np.log1p(-outlier_prob) + np.log(weight)[None] + log_dens
-        full = np.concatenate([log_term, np.full((len(flows), 1), log_out)], axis=1)
-        full -= full.max(axis=1, keepdims=True)
-        r = np.exp(full)
-        r /= r.sum(axis=1, keepdims=True)
-        r = r[:, :-1]
-        if it < weight_iterations:
-            weight = np.where(facing, (r.sum(axis=0) + smoothing / n_facing) / (r.sum() + smoothing), 0.0)
-    return r
+    (rows sum to one minus the flow's outlier probability), under the same gate, visibility and adapted
+    weights as ``flow_log_likelihoods`` (the same kernel code)."""
+    args = _packed(flows, img, noise_px, fps, width, height, outlier_prob, max_flow)
+    return _responsibilities_kernel(args[0], *(a[0] for a in args[1:7]), *args[7:], int(weight_iterations),
+                                    float(smoothing))

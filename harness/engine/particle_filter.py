@@ -1,14 +1,24 @@
-"""Particle filter over the baselink pose in camera coordinates (position + unit quaternion).
+"""Particle clouds over the baselink pose in camera coordinates (position + unit quaternion).
 
-Prediction moves every particle by the base velocity that the recognition belief predicts (base frame),
-``t' = t + R v dt``, ``R' = R exp(omega dt)`` (minus the camera's own motion), plus Gaussian process noise.
-Weights come from the tempered flow likelihood; systematic resampling when the effective sample size falls
-below a fraction of the particle count, followed by a small roughening jitter proportional to the cloud's
-spread (so that a cloud that has collapsed onto a few poses can still move). The estimate is the weighted
-mean position and the Markley quaternion average.
+One cloud belongs to one pose track. Each frame it is moved by a **mixture proposal**: a share ``1 - alpha``
+of the new particles comes from the motion model (an ancestor drawn by its weight, moved by the base velocity
+the track's belief predicts, ``t' = t + R v dt``, ``R' = R exp(omega dt)``, minus the camera's own motion, plus
+Gaussian process noise), the share ``alpha`` from a Gaussian ``g`` around a guide pose (the pose recovery found
+in the previous frame, moved the same way). Every new particle ``x`` is importance-weighted by
+
+    w(x) ∝ p(y | x) π(x) / q(x),   π(x) = sum_i w_i k(x | x_i),   q(x) = (1 - alpha) π(x) + alpha g(x)
+
+with ``k`` the transition density (Gaussian in position and in the rotation vector of the relative
+rotation): the marginal particle filter's weights, so that guided particles never enter the cloud unweighted.
+With ``alpha = 0`` this is the bootstrap filter with resampling at every frame.
+
+Process noise is isotropic in rotation, or, when the camera knows gravity, split into a yaw part about the
+known vertical and a small tilt part.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import logsumexp
@@ -40,168 +50,81 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator, n: int | 
     return np.searchsorted(cum, pointers, side="right")
 
 
-def upright_orientations(heading: np.ndarray, elevation: np.ndarray) -> np.ndarray:
-    """Camera-frame quaternions ``(N, 4)`` of an upright body seen by a camera pitched down by ``elevation``
-    (rad); ``heading`` (rad, about world up) 0 puts the body's forward axis along the camera's horizontal
-    viewing direction (the camera sees its back)."""
-    heading, elevation = np.broadcast_arrays(np.asarray(heading, float), np.asarray(elevation, float))
-    # world-from-camera = level camera pitched down about its own x axis.
+def camera_pitch(elevation: np.ndarray) -> np.ndarray:
+    """World-from-camera rotations ``(..., 3, 3)`` of a camera looking along world +x, pitched down by
+    ``elevation`` (rad), without roll."""
+    elevation = np.asarray(elevation, dtype=float)
     c, s = np.cos(elevation), np.sin(elevation)
-    pitch = np.zeros(heading.shape + (3, 3))
+    pitch = np.zeros(elevation.shape + (3, 3))
     pitch[..., 0, 0] = 1.0
     pitch[..., 1, 1], pitch[..., 1, 2] = c, s
     pitch[..., 2, 1], pitch[..., 2, 2] = -s, c
-    world_from_cam = _LEVEL_CAMERA @ pitch
-    cam_from_body = np.swapaxes(world_from_cam, -1, -2) @ geometry.to_matrix(geometry.yaw(heading))
+    return _LEVEL_CAMERA @ pitch
+
+
+def upright_orientations(heading: np.ndarray, world_from_camera: np.ndarray) -> np.ndarray:
+    """Camera-frame quaternions ``(N, 4)`` of an upright body under cameras ``world_from_camera``
+    ``(N, 3, 3)`` (or one ``(3, 3)``) whose world looks along +x; ``heading`` (rad, about world up) 0 puts the
+    body's forward axis along the camera's horizontal viewing direction (the camera sees its back)."""
+    heading = np.asarray(heading, dtype=float)
+    cam_from_body = np.swapaxes(world_from_camera, -1, -2) @ geometry.to_matrix(geometry.yaw(heading))
     return geometry.from_matrix(cam_from_body)
 
 
-class ParticleFilter:
-    """Baselink pose hypotheses ``positions (N, 3)``, ``quats (N, 4)`` with log-weights ``(N,)``."""
+def level_world(gravity: np.ndarray) -> np.ndarray:
+    """A world-from-camera rotation ``(3, 3)`` whose world z is against ``gravity`` (a unit vector in the camera
+    frame) and whose world x is the camera's viewing direction projected on the floor: the frame in which
+    ``upright_orientations`` places bodies when the camera knows its tilt."""
+    up = -np.asarray(gravity, dtype=float)
+    fwd = np.array([0.0, 0.0, 1.0]) - up[2] * up
+    if np.linalg.norm(fwd) < 1e-6:          # looking straight down: any horizontal axis will do
+        fwd = np.array([0.0, 1.0, 0.0]) - up[1] * up
+    fwd /= np.linalg.norm(fwd)
+    left = np.cross(up, fwd)
+    return np.stack([fwd, left, up], axis=0)   # rows: world axes in camera coordinates
 
-    def __init__(self, n_particles: int, rng: np.random.Generator, ess_fraction: float = 0.5,
-                 position_noise: float = 0.15, rotation_noise: float = 0.3, roughening: float = 0.15):
-        if n_particles < 1:
-            raise EngineError(f"the particle filter needs at least one particle, got {n_particles}")
-        if not 0.0 < ess_fraction <= 1.0:
-            raise EngineError(f"ess_fraction must be in (0, 1], got {ess_fraction}")
-        self.n = int(n_particles)
-        self.rng = rng
-        self.ess_fraction = ess_fraction
-        self.position_noise = position_noise      # m per sqrt(s)
-        self.rotation_noise = rotation_noise      # rad per sqrt(s)
-        self.roughening = roughening
-        self.positions = np.zeros((self.n, 3))
-        self.quats = np.tile([1.0, 0.0, 0.0, 0.0], (self.n, 1))
-        self.log_weights = np.full(self.n, -np.log(self.n))
 
-    # --- initialisation -------------------------------------------------------------------------
+@dataclass
+class ParticleCloud:
+    """Pose hypotheses ``positions (N, 3)`` (m, camera frame), ``quats (N, 4)`` (camera from base) and
+    normalised ``log_weights (N,)``."""
 
-    def initialise(self, intr: Intrinsics, flows: np.ndarray, depth_range: tuple[float, float],
-                   elevation_range: tuple[float, float], body_height: float) -> None:
-        """Spread the particles over a coarse prior: the subject where the flows are, at a depth within the
-        given range and a band around what the flows' vertical extent suggests, any heading, upright under a
-        camera pitched within ``elevation_range`` (radians)."""
-        lo, hi = depth_range
-        if not 0 < lo < hi:
-            raise EngineError(f"depth range must satisfy 0 < near < far, got {depth_range}")
-        rng, n = self.rng, self.n
-        pts = np.asarray(flows, dtype=float).reshape(-1, 4)[:, :2]
-        if len(pts) >= 2:
-            u_lo, u_hi = np.percentile(pts[:, 0], [5, 95])
-            v_lo, v_hi = np.percentile(pts[:, 1], [5, 95])
-            # The flows' height suggests a depth for a body of known height. It overestimates the depth when
-            # the body is partly hidden (a wall hiding the legs) or crouched, and underestimates it when the
-            # arms are raised, hence the asymmetric band.
-            extent = max(v_hi - v_lo, 1.0)
-            guess = intr.fy * body_height / extent
-            near, far = max(lo, 0.35 * guess), min(hi, 1.3 * guess)
-            if near >= far:
-                near, far = lo, hi
-            u = rng.uniform(u_lo, u_hi, n) if u_hi > u_lo else np.full(n, u_lo)
-            # The base (pelvis) is in the lower part of the visible body, or below it when the legs are hidden.
-            v = rng.uniform(v_lo + 0.2 * extent, v_hi + 0.3 * extent, n)
-        else:
-            near, far = lo, hi
-            u = rng.uniform(0, intr.width, n)
-            v = rng.uniform(0, intr.height, n)
-        z = np.exp(rng.uniform(np.log(near), np.log(far), n))
-        self.positions = np.stack([(u - intr.cx) * z / intr.fx, (v - intr.cy) * z / intr.fy, z], axis=1)
-        self.quats = upright_orientations(rng.uniform(-np.pi, np.pi, n), rng.uniform(*elevation_range, n))
-        self.log_weights = np.full(n, -np.log(n))
+    positions: np.ndarray
+    quats: np.ndarray
+    log_weights: np.ndarray
 
-    # --- recursion ------------------------------------------------------------------------------
-
-    def predict(self, base_linear: np.ndarray, base_angular: np.ndarray, dt: float,
-                camera_motion: np.ndarray | None = None) -> None:
-        """Move by the predicted base velocity (base frame, ``(3,)`` or ``(N, 3)``) for ``dt`` seconds."""
-        rot = geometry.to_matrix(self.quats)
-        v = np.broadcast_to(np.asarray(base_linear, dtype=float), (self.n, 3))
-        w = np.broadcast_to(np.asarray(base_angular, dtype=float), (self.n, 3))
-        pos = self.positions + np.einsum("nij,nj->ni", rot, v) * dt
-        quats = geometry.multiply(self.quats, geometry.exp(w * dt))
-        if camera_motion is not None:
-            # The camera moves by (vc, wc) in its own frame: points move by -(vc + wc x X) dt, and rotate
-            # by -wc dt.
-            vc, wc = camera_motion[:3], camera_motion[3:]
-            pos = pos - (vc + np.cross(wc, pos)) * dt
-            quats = geometry.multiply(geometry.exp(np.broadcast_to(-wc * dt, (self.n, 3))), quats)
-        sd = np.sqrt(dt)
-        pos = pos + self.rng.normal(0.0, self.position_noise * sd, (self.n, 3))
-        quats = geometry.multiply(quats, geometry.exp(self.rng.normal(0.0, self.rotation_noise * sd, (self.n, 3))))
-        self.positions, self.quats = pos, geometry.normalize(quats)
-
-    def update(self, log_likelihood: np.ndarray) -> None:
-        """Reweight by per-particle log-likelihoods ``(N,)`` and resample if the ESS is low."""
-        ll = np.asarray(log_likelihood, dtype=float)
-        if ll.shape != (self.n,):
-            raise EngineError(f"expected {self.n} log-likelihoods, got {ll.shape}")
-        lw = self.log_weights + np.where(np.isfinite(ll), ll, -1e300)
-        self.log_weights = lw - logsumexp(lw)
-        if effective_sample_size(self.weights) < self.ess_fraction * self.n:
-            self._resample()
-
-    def _resample(self) -> None:
-        spread = np.sqrt(np.average((self.positions - self.estimate()[0]) ** 2, axis=0, weights=self.weights))
-        idx = systematic_resample(self.weights, self.rng)
-        self.positions = self.positions[idx] + self.rng.normal(0.0, 1.0, (self.n, 3)) * self.roughening * spread
-        self.quats = geometry.normalize(geometry.multiply(
-            self.quats[idx], geometry.exp(self.rng.normal(0.0, self.roughening * 0.1, (self.n, 3)))))
-        self.log_weights = np.full(self.n, -np.log(self.n))
-
-    def inject(self, position: np.ndarray, quat: np.ndarray, fraction: float, position_std: float,
-               rotation_std: float) -> None:
-        """Replace the lowest-weight ``fraction`` of particles by samples around a pose found by recovery (the
-        'extended' proposal); they get the median weight so that the next likelihood decides."""
-        k = int(round(fraction * self.n))
-        if k <= 0:
-            return
-        worst = np.argsort(self.log_weights)[:k]
-        self.positions[worst] = position + self.rng.normal(0.0, position_std, (k, 3))
-        self.quats[worst] = geometry.normalize(geometry.multiply(
-            np.broadcast_to(quat, (k, 4)), geometry.exp(self.rng.normal(0.0, rotation_std, (k, 3)))))
-        self.log_weights[worst] = np.median(self.log_weights)
-        self.log_weights -= logsumexp(self.log_weights)
-
-    def inject_jumps(self, fraction: float, angles: tuple[float, ...] = (np.pi, 0.5 * np.pi, -0.5 * np.pi)) -> None:
-        """Kinematic-jump proposals: replace the lowest-weight ``fraction`` of particles by copies of the
-        estimate turned about the body's own vertical axis (by default half and quarter turns), with the
-        median weight.
-
-        One camera cannot tell a body seen from the front from one seen from the back until the motion
-        reveals it (a squat from the front and from behind give almost the same flows for many frames);
-        by then resampling has emptied the other mode. Keeping a few particles in the mirrored poses lets
-        the filter switch when the evidence arrives."""
-        k = int(round(fraction * self.n))
-        if k <= 0:
-            return
-        pos, quat = self.estimate()
-        worst = np.argsort(self.log_weights)[:k]
-        turns = np.asarray(angles)[np.arange(k) % len(angles)]
-        self.positions[worst] = pos
-        self.quats[worst] = geometry.multiply(np.broadcast_to(quat, (k, 4)), geometry.yaw(turns))
-        self.log_weights[worst] = np.median(self.log_weights)
-        self.log_weights -= logsumexp(self.log_weights)
-
-    def select(self, log_likelihood: np.ndarray, n: int) -> None:
-        """Keep ``n`` particles drawn by systematic resampling with weights from ``log_likelihood``: how a
-        wide initial cloud is narrowed to the working size after the first frame."""
-        ll = np.asarray(log_likelihood, dtype=float)
-        idx = systematic_resample(np.exp(ll - ll.max()), self.rng, n)
-        self.n = int(n)
-        self.positions, self.quats = self.positions[idx], self.quats[idx]
-        self.log_weights = np.full(self.n, -np.log(self.n))
-
-    # --- read-out -------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self.positions)
 
     @property
     def weights(self) -> np.ndarray:
         return np.exp(self.log_weights)
 
+    def take(self, index: np.ndarray) -> "ParticleCloud":
+        """The particles at ``index``, equally weighted."""
+        n = len(index)
+        return ParticleCloud(self.positions[index].copy(), self.quats[index].copy(), np.full(n, -np.log(n)))
+
+    def reweight(self, log_likelihood: np.ndarray) -> float:
+        """Multiply the weights by likelihoods ``(N,)`` (log) and normalise; returns the log of the weighted
+        mean likelihood (this frame's particle estimate of the marginal likelihood)."""
+        ll = np.asarray(log_likelihood, dtype=float)
+        if ll.shape != (len(self),):
+            raise EngineError(f"expected {len(self)} log-likelihoods, got {ll.shape}")
+        lw = self.log_weights + np.where(np.isfinite(ll), ll, -1e300)
+        norm = float(logsumexp(lw))
+        self.log_weights = lw - norm
+        return norm
+
+    def spread(self) -> np.ndarray:
+        """Weighted per-axis standard deviation of the positions ``(3,)``, metres."""
+        mean = self.weights @ self.positions
+        return np.sqrt(self.weights @ (self.positions - mean) ** 2)
+
     def estimate(self, mode_radius: float = np.deg2rad(45.0)) -> tuple[np.ndarray, np.ndarray]:
         """Weighted mean position ``(3,)`` and Markley average orientation ``(4,)`` of the heaviest mode: the
         particles within ``mode_radius`` of the candidate centre (one of the ten heaviest particles) that
-        gathers the most weight. The cloud may hold mirrored modes, and the mean of two modes is neither."""
+        gathers the most weight. A cloud may hold mirrored modes, and the mean of two modes is neither."""
         w = self.weights
         centres = np.argsort(w)[-10:]
         near = geometry.angle_between(self.quats[None, :, :], self.quats[centres][:, None, :]) <= mode_radius
@@ -209,3 +132,131 @@ class ParticleFilter:
         w = np.where(near, w, 0.0)
         w = w / w.sum()
         return w @ self.positions, geometry.weighted_mean(self.quats, w)
+
+
+def initial_cloud(intr: Intrinsics, flows: np.ndarray, n: int, depth_range: tuple[float, float],
+                  world_from_camera: np.ndarray, body_height: float, rng: np.random.Generator) -> ParticleCloud:
+    """A coarse prior: the subject where the flows are, at a depth within ``depth_range`` and a band around
+    what the flows' vertical extent suggests, any heading, upright under the cameras ``world_from_camera``
+    (``(n, 3, 3)`` drawn by the caller from its elevation prior, or the known tilt)."""
+    lo, hi = depth_range
+    if not 0 < lo < hi:
+        raise EngineError(f"depth range must satisfy 0 < near < far, got {depth_range}")
+    pts = np.asarray(flows, dtype=float).reshape(-1, 4)[:, :2]
+    if len(pts) >= 2:
+        u_lo, u_hi = np.percentile(pts[:, 0], [5, 95])
+        v_lo, v_hi = np.percentile(pts[:, 1], [5, 95])
+        # The flows' height suggests a depth for a body of known height. It overestimates the depth when the
+        # body is partly hidden (a wall hiding the legs) or crouched, and underestimates it when the arms are
+        # raised, hence the asymmetric band.
+        extent = max(v_hi - v_lo, 1.0)
+        guess = intr.fy * body_height / extent
+        near, far = max(lo, 0.35 * guess), min(hi, 1.3 * guess)
+        if near >= far:
+            near, far = lo, hi
+        u = rng.uniform(u_lo, u_hi, n) if u_hi > u_lo else np.full(n, u_lo)
+        # The base (pelvis) is in the lower part of the visible body, or below it when the legs are hidden.
+        v = rng.uniform(v_lo + 0.2 * extent, v_hi + 0.3 * extent, n)
+    else:
+        near, far = lo, hi
+        u = rng.uniform(0, intr.width, n)
+        v = rng.uniform(0, intr.height, n)
+    z = np.exp(rng.uniform(np.log(near), np.log(far), n))
+    positions = np.stack([(u - intr.cx) * z / intr.fx, (v - intr.cy) * z / intr.fy, z], axis=1)
+    quats = upright_orientations(rng.uniform(-np.pi, np.pi, n), world_from_camera)
+    return ParticleCloud(positions, quats, np.full(n, -np.log(n)))
+
+
+@dataclass(frozen=True)
+class ProcessNoise:
+    """Random-walk noise of the base pose per sqrt(second): position (m), rotation (rad) about any axis, or,
+    when ``up`` (the world's up axis in the camera frame) is known, ``rotation`` about ``up`` (yaw) and
+    ``tilt`` about the horizontal axes."""
+
+    position: float
+    rotation: float
+    tilt: float | None = None
+    up: np.ndarray | None = None
+
+    def rotation_std(self, dt: float) -> np.ndarray:
+        """Per-axis standard deviations ``(3,)`` of the rotation noise, in the noise frame (``frame``)."""
+        sd = np.sqrt(dt)
+        if self.up is None:
+            return np.full(3, self.rotation * sd)
+        return np.array([self.tilt * sd, self.tilt * sd, self.rotation * sd])
+
+    def frame(self) -> np.ndarray:
+        """Camera-from-noise rotation ``(3, 3)``: columns two horizontal axes and up (identity without ``up``)."""
+        if self.up is None:
+            return np.eye(3)
+        return level_world(-self.up).T
+
+
+def motion_mean(positions: np.ndarray, quats: np.ndarray, base_linear: np.ndarray, base_angular: np.ndarray,
+                dt: float, camera_motion: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The deterministic part of the motion model: poses moved for ``dt`` s by base velocities (base frame,
+    ``(3,)`` or ``(N, 3)``) and against the camera's own motion ``(6,)`` (its linear and angular velocity in
+    its frame: points move by ``-(v_c + w_c x X) dt`` and rotate by ``-w_c dt``)."""
+    n = len(positions)
+    rot = geometry.to_matrix(quats)
+    v = np.broadcast_to(np.asarray(base_linear, dtype=float), (n, 3))
+    w = np.broadcast_to(np.asarray(base_angular, dtype=float), (n, 3))
+    pos = positions + np.einsum("nij,nj->ni", rot, v) * dt
+    q = geometry.multiply(quats, geometry.exp(w * dt))
+    if camera_motion is not None:
+        vc, wc = camera_motion[:3], camera_motion[3:]
+        pos = pos - (vc + np.cross(wc, pos)) * dt
+        q = geometry.multiply(geometry.exp(np.broadcast_to(-wc * dt, (n, 3))), q)
+    return pos, geometry.normalize(q)
+
+
+def _gaussian_pose_log_density(pos: np.ndarray, quat: np.ndarray, mean_pos: np.ndarray, mean_quat: np.ndarray,
+                               pos_std: np.ndarray, rot_std: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    """``(N, K)``: log density of poses ``(N,)`` under Gaussians centred on ``(K,)`` poses, independent in
+    position (per-axis ``pos_std``, camera axes) and in the rotation vector ``log(R_mean^T R)`` expressed in
+    ``frame`` (per-axis ``rot_std``)."""
+    dp = (pos[:, None, :] - mean_pos[None, :, :]) / pos_std
+    # Noise is applied on the left in the camera frame (see propose): R = exp(e) R_mean, e in camera axes.
+    rel = geometry.multiply(quat[:, None, :], geometry.conjugate(mean_quat)[None, :, :])
+    dr = (geometry.log(rel) @ frame) / rot_std
+    return (-0.5 * (np.sum(dp * dp, axis=-1) + np.sum(dr * dr, axis=-1))
+            - np.sum(np.log(pos_std)) - np.sum(np.log(rot_std)) - 3.0 * np.log(2.0 * np.pi))
+
+
+def propose(cloud: ParticleCloud, n: int, base_linear: np.ndarray, base_angular: np.ndarray, dt: float,
+            noise: ProcessNoise, rng: np.random.Generator, camera_motion: np.ndarray | None = None,
+            guide: tuple[np.ndarray, np.ndarray] | None = None, guide_fraction: float = 0.0,
+            guide_std: tuple[np.ndarray, np.ndarray] | None = None) -> ParticleCloud:
+    """``n`` new particles from the mixture proposal (module docstring), with log-weights ``log π(x)/q(x)``
+    normalised: multiply in the likelihood with ``ParticleCloud.reweight``.
+
+    guide: a pose ``(position (3,), quaternion (4,))`` at the *new* frame; guide_std: its per-axis position
+    (m) and rotation (rad, camera axes) standard deviations.
+    """
+    mean_pos, mean_quat = motion_mean(cloud.positions, cloud.quats, base_linear, base_angular, dt, camera_motion)
+    pos_std = np.full(3, noise.position * np.sqrt(dt))
+    rot_std = noise.rotation_std(dt)
+    frame = noise.frame()
+    n_guide = int(round(guide_fraction * n)) if guide is not None else 0
+    n_model = n - n_guide
+    parents = systematic_resample(cloud.weights, rng, n_model)
+    pos = mean_pos[parents] + rng.normal(size=(n_model, 3)) * pos_std
+    quat = geometry.multiply(geometry.exp((rng.normal(size=(n_model, 3)) * rot_std) @ frame.T), mean_quat[parents])
+    if n_guide:
+        g_pos, g_quat = guide
+        g_pos_std, g_rot_std = (np.broadcast_to(np.asarray(s, dtype=float), (3,)) for s in guide_std)
+        pos = np.concatenate([pos, g_pos + rng.normal(size=(n_guide, 3)) * g_pos_std])
+        quat = np.concatenate([quat, geometry.multiply(geometry.exp(rng.normal(size=(n_guide, 3)) * g_rot_std),
+                                                       np.broadcast_to(g_quat, (n_guide, 4)))])
+    quat = geometry.normalize(quat)
+    log_w = np.full(n, -np.log(n))
+    if n_guide:
+        prior = logsumexp(_gaussian_pose_log_density(pos, quat, mean_pos, mean_quat, pos_std, rot_std, frame)
+                          + cloud.log_weights[None, :], axis=1)
+        g = _gaussian_pose_log_density(pos, quat, np.asarray(guide[0])[None], np.asarray(guide[1])[None],
+                                       g_pos_std, g_rot_std, np.eye(3))[:, 0]
+        a = n_guide / n
+        q = np.logaddexp(np.log1p(-a) + prior, np.log(a) + g) if a < 1 else g
+        log_w = prior - q
+        log_w -= logsumexp(log_w)
+    return ParticleCloud(pos, quat, log_w)

@@ -56,8 +56,11 @@ class Recognizer:
         jump) arrives."""
         return self.log_alpha >= self.log_alpha.max(axis=1, keepdims=True) + self._log_prune
 
-    def update(self, log_b: np.ndarray) -> None:
+    def update(self, log_b: np.ndarray | None) -> float:
         """Fold in one frame's emission log-likelihoods ``(C, K)``; entries of inactive states are ignored.
+        Returns the recursion's normaliser ``log p(y_t | y_<t) = log sum_ck alpha_t|t-1(c, k) b_t(c, k)``
+        (the classes and states summed out): summed over frames it is the evidence of the pose path the
+        emissions were evaluated along.
 
         ``None`` (or an all-zero array) means a frame without evidence: the belief only moves.
         """
@@ -68,8 +71,10 @@ class Recognizer:
                 raise EngineError(f"emissions must be {self.log_alpha.shape}, got {log_b.shape}")
             worst = log_b[active].min()
             self.log_alpha = self.log_alpha + np.where(active, log_b, worst)
-        self.log_alpha = self.log_alpha - logsumexp(self.log_alpha)
+        norm = float(logsumexp(self.log_alpha))
+        self.log_alpha = self.log_alpha - norm
         self._started = True
+        return norm
 
     @property
     def posterior(self) -> np.ndarray:

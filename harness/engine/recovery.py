@@ -14,14 +14,22 @@ Jacobian evaluation of the model points, whatever the number of flows.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from harness import geometry
 from harness.body.kinematics import forward_points_and_jacobians
 from harness.body.model import BodyModel
 from harness.body.surface import SurfacePoints
-from harness.engine.transform import MIN_DEPTH, _skew
+from harness.engine.features import ANGLE_RATES, ANGLES
+from harness.engine.likelihood import responsibilities
+from harness.engine.transform import MIN_DEPTH, _skew, state_point_distributions, to_image
 from harness.pinhole import Intrinsics, project, projection_jacobian
+
+if TYPE_CHECKING:
+    from harness.engine.model import EngineModel
+    from harness.engine.tracker import TrackerConfig
 
 
 def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows: np.ndarray, resp: np.ndarray,
@@ -80,6 +88,46 @@ def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows:
     return angles, pos, rot
 
 
+def recover(model: "EngineModel", flows: np.ndarray, intr: Intrinsics, fps: float, state_belief: np.ndarray,
+            position: np.ndarray, rot: np.ndarray, position_std: np.ndarray, config: "TrackerConfig",
+            camera_motion: np.ndarray | None = None, fix_pose: bool = False,
+            occlusion: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Angles of a recognised primitive and a refined pose, by EM against the flows (``occlusion``: as for
+    ``to_image``).
+
+    ``state_belief`` ``(S,)`` over all database states (zero outside the recognised primitive). The prior is
+    the belief's moment-matched Gaussian over the angles; the pose prior is ``position`` ``(3,)``,
+    ``rot`` ``(3, 3)`` with ``position_std`` ``(3,)`` and ``config.refine_rotation_std``. The E-step assigns
+    flows to model points softly, first under the state belief, then at the current estimate (whose points
+    only spread over their surface patch); the M-step is ``refine_pose``. Returns ``(angles (50,), position
+    (3,), rotation (3, 3))``; without flows, the prior mean and the given pose.
+    """
+    idx = np.flatnonzero(state_belief > 0)
+    gamma = state_belief[idx] / state_belief[idx].sum()
+    means, covars = model.db_means[idx], model.db_covars[idx]
+    theta0 = gamma @ means[:, ANGLES]
+    var = gamma @ (covars[:, ANGLES] + (means[:, ANGLES] - theta0) ** 2)
+    rates = gamma @ means[:, ANGLE_RATES]
+    rate_var = gamma @ (covars[:, ANGLE_RATES] + (means[:, ANGLE_RATES] - rates) ** 2)
+    angles, pos_r, rot_r = theta0, position, rot
+    if len(flows) == 0:
+        return angles, pos_r, rot_r
+    mix = model.dists.take(idx).mixture(gamma)
+    kw = dict(weight_iterations=config.weight_iterations, smoothing=config.weight_smoothing)
+    for it in range(config.em_iterations):
+        if it:
+            mix = state_point_distributions(model.body, angles, np.zeros(len(angles)), rates, rate_var,
+                                            mix.base_linear[0], np.zeros(3), mix.base_angular[0], np.zeros(3),
+                                            model.points, model.spread)
+        img = to_image(intr, rot_r[None], pos_r[None], mix, camera_motion, occlusion=occlusion)
+        resp = responsibilities(flows, img, config.noise_px, fps, intr.width, intr.height, config.outlier_prob, **kw)
+        angles, pos_r, rot_r = refine_pose(model.body, model.points, intr, flows, resp, theta0, np.sqrt(var),
+                                           position, rot, position_std, config.refine_rotation_std,
+                                           config.noise_px, model.spread, config.refine_iterations,
+                                           start=(angles, pos_r, rot_r), fix_pose=fix_pose)
+    return angles, pos_r, rot_r
+
+
 def fit_without_database(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows: list[np.ndarray],
                          base_pos: np.ndarray, base_quat: np.ndarray, noise_px: float, spread: float,
                          angle_step_std: float = 0.3, iterations: int = 2) -> np.ndarray:
@@ -87,9 +135,6 @@ def fit_without_database(body: BodyModel, points: SurfacePoints, intr: Intrinsic
     the model points at the current angles, Gauss-Newton), from the previous frame's angles with a weak
     smoothness prior of ``angle_step_std`` rad, at a given base pose ``(T, 3)``, ``(T, 4)``. Returns
     ``(T, 50)`` angles. No HMM, no recognition: what the database's prior adds is the difference."""
-    from harness.engine.likelihood import responsibilities
-    from harness.engine.transform import state_point_distributions, to_image
-
     angles = np.zeros(50)
     out = np.empty((len(flows), 50))
     zeros50, zeros3 = np.zeros(50), np.zeros(3)
@@ -101,7 +146,7 @@ def fit_without_database(body: BodyModel, points: SurfacePoints, intr: Intrinsic
             img = to_image(intr, rot[None], base_pos[t][None], dist)
             # Positions only: a velocity covariance this wide makes the velocity factor constant.
             img = type(img)(img.pix, img.pix_cov, img.flow, np.broadcast_to(1e12 * np.eye(2), img.flow_cov.shape),
-                            img.facing)
+                            img.visibility)
             resp = responsibilities(f, img, noise_px, 1.0, intr.width, intr.height)
             angles, _, _ = refine_pose(body, points, intr, f, resp, angles, np.full(50, angle_step_std),
                                        base_pos[t], rot, np.full(3, 1e-4), 1e-4, noise_px, spread, iterations=1)

@@ -1,16 +1,21 @@
-"""The concurrent loop: particle filter, recognition and recovery, each feeding the others, frame by frame.
+"""The concurrent loop: pose tracks, recognition and recovery, each feeding the others, frame by frame.
 
-Per frame ``t`` (with flows ``y_t``):
-1. predict: the recognition belief of ``t-1`` gives the expected base velocity (base frame); the particle
-   filter moves its poses by it; the forward recursion moves its belief through the transitions;
-2. weight: every particle is scored by the flows under the belief's moment-matched point distributions;
-3. recognise: every active HMM state is scored at the filter's pose estimate; the forward recursion folds
-   the scores in and gives the class posterior;
-4. recover: angles from the recognised primitive's state belief, refined to the flows (Gauss-Newton) together
-   with the base pose; the refined pose is injected back into the particle cloud (the extended proposal),
-   which sharpens the next frame's weighting and recognition.
+Per frame ``t`` (with flows ``y_t``), in named stages:
+1. ``_propose``: every track moves its particles by the base velocity its belief predicts, through the mixture
+   proposal around the pose recovery found in the previous frame (importance-weighted), and moves its belief
+   through the HMM transitions;
+2. ``_weigh``: every particle is scored by the flows under its track's moment-matched belief (all tracks'
+   particles in one kernel call);
+3. ``_recognise``: each track scores its active HMM states at its pose estimate; the forward recursion folds
+   them in, and its normaliser is added to the track's evidence;
+4. ``_recover``: each track's angles from its recognised primitive's state belief, refined with its pose
+   (EM and Gauss-Newton); the refined pose guides the track's next proposal;
+5. ``_manage``: tracks far behind the best in evidence are dropped, tracks that met are merged;
+6. ``_record``: the class posterior is the evidence-weighted mixture of the tracks' posteriors; the pose comes
+   from the track with the most evidence.
 
-The engine reads only the observation (flows and intrinsics), the body model, and the database.
+The first frame with flows spawns the tracks (``_start``). The engine reads only the observation (flows and
+intrinsics), the body model and the database.
 """
 
 from __future__ import annotations
@@ -19,71 +24,105 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.special import softmax
 
 from harness import geometry
-from harness.body.kinematics import geom_z_range
 from harness.body.model import BodyModel
-from harness.body.surface import sample_surface
 from harness.engine.database import MotionDatabase
-from harness.engine.features import ANGLE_RATES, ANGLES
-from harness.engine.likelihood import flow_log_likelihoods, responsibilities, tempered
-from harness.engine.particle_filter import ParticleFilter
+from harness.engine.likelihood import flow_log_likelihoods, tempered
+from harness.engine.model import EngineModel
+from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
+                                            initial_cloud, level_world, motion_mean, propose, systematic_resample)
 from harness.engine.recognition import Recognizer
-from harness.engine.recovery import refine_pose
-from harness.engine.transform import database_point_distributions, patch_std, state_point_distributions, to_image
+from harness.engine.recovery import recover
+from harness.engine.track import Recovered, Track, turned, twin
+from harness.engine.transform import PointDistributions, to_image
 from harness.errors import EngineError
 from harness.observation import Observation
 from harness.pinhole import Intrinsics
 
+STAGES = ("propose", "weigh", "recognise", "recover", "manage")
+
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Engine settings. Distances in metres, angles in degrees, noise in pixels."""
+    """Engine settings. Distances in metres, angles in degrees unless a name says rad, noise in pixels.
+    Where a value was chosen by measurement, the comment says on what."""
 
-    particles: int = 200
-    model_points: int = 150
-    model_seed: int = 7                      # the engine's own surface sample; independent of the markers
-    init_distance: tuple[float, float] = (2.0, 8.0)
-    init_elevation: tuple[float, float] = (-10.0, 40.0)
-    init_factor: int = 8                     # the first frame weighs this many times more particles
+    particles: int = 200                     # in total over all tracks
+    model_points: int = 150                  # the engine's own surface sample
+    model_seed: int = 7                      # ... seeded independently of the markers
+    init_distance: tuple[float, float] = (2.0, 8.0)    # prior range of the subject's distance
+    init_elevation: tuple[float, float] = (-10.0, 40.0)  # prior range of the camera's pitch (no gravity given)
+    init_factor: int = 8                     # the first frame weighs this many times more particles (issue 5)
     noise_px: float = 1.0                    # assumed pixel noise of flow positions
     outlier_prob: float = 0.05
-    weight_iterations: int = 2               # EM steps on the model points' mixture weights per hypothesis
-    weight_smoothing: float = 10.0           # pseudo-flows holding the weights towards uniform
-    n_eff_filter: float = 4.0                # tempering: a frame counts as at most this many flows
-    n_eff_recognition: float = 3.0
-    start_spread: float = 0.05
-    prune: float = 1e-4
-    ess_fraction: float = 0.5
-    position_noise: float = 0.15             # m / sqrt(s)
-    rotation_noise: float = 0.3              # rad / sqrt(s)
-    refine_iterations: int = 2              # Gauss-Newton steps per M-step
+    weight_iterations: int = 2               # EM steps on the model points' mixture weights (docs/engine.md)
+    weight_smoothing: float = 10.0           # pseudo-flows holding those weights towards uniform
+    n_eff_filter: float = 4.0                # tempering: a frame counts as at most this many flows (dev seeds)
+    n_eff_recognition: float = 3.0           # ... for the recognition and the evidence (dev seeds)
+    start_spread: float = 0.05               # start probability spread over all states
+    prune: float = 1e-4                      # states below this times their primitive's best are not scored
+    position_noise: float = 0.15             # m / sqrt(s), process noise of the base position
+    rotation_noise: float = 0.3              # rad / sqrt(s), of the base orientation (yaw when gravity is known)
+    tilt_noise: float = 0.05                 # rad / sqrt(s), of the tilt when gravity is known
+    floor_std: float = 0.05                  # m: the lowest body point's height about a known floor ...
+    floor_flight: float = 0.2                # ... or, with this probability, in flight ...
+    floor_flight_height: float = 0.8         # ... up to this height (m)
+    refine_iterations: int = 2               # Gauss-Newton steps per M-step of recovery
     refine_position_std: float = 0.25        # m: least pose freedom recovery has around the filter's estimate
-    em_iterations: int = 3                  # re-assignments of flows to model points during recovery
-    inject_fraction: float = 0.1
-    jump_fraction: float = 0.06              # particles re-seeded each frame at mirrored headings
+    refine_rotation_std: float = 0.3         # rad: recovery's rotation freedom around the filter's estimate
+    em_iterations: int = 3                   # re-assignments of flows to model points in recovery (issue 5)
+    guide_fraction: float = 0.1              # share of a track's particles proposed around recovery's pose
+    guide_rotation_std: float = 0.05         # rad, spread of those proposals (position: half the cloud's spread)
+    track_turns: tuple[float, ...] = (90.0, 180.0, -90.0)   # tracks spawned at these turns of the leader
+    twin_track: bool = True                  # and at the leader's depth-reflected twin
+    self_occlusion: bool = True              # the body hides itself in the likelihood (depth order)
+    occlusion_radius: float = 1.0            # footprint of a point's patch, in patch radii
+    occlusion_depth: float = 0.08            # m: a point must be this much nearer to cover another
+    min_spawn_ess: float = 5.0               # a track starts from the first frame's particles near it if they
+                                             # hold this many effective particles, else from the lead's turned
+    track_prune_nats: float = 30.0           # a track trailing the best by this much evidence is dropped
+    track_merge_deg: float = 30.0            # tracks closer than this in orientation ...
+    track_merge_m: float = 0.3               # ... and this in position merge (the one with less evidence goes)
 
     def __post_init__(self):
-        positive = {"particles": self.particles, "model_points": self.model_points,
-                    "n_eff_filter": self.n_eff_filter, "n_eff_recognition": self.n_eff_recognition}
+        positive = {"particles": self.particles, "model_points": self.model_points, "init_factor": self.init_factor,
+                    "n_eff_filter": self.n_eff_filter, "n_eff_recognition": self.n_eff_recognition,
+                    "noise_px": self.noise_px, "em_iterations": self.em_iterations}
         for name, value in positive.items():
             if not value > 0:
                 raise EngineError(f"engine setting {name} must be positive, got {value}")
-        if self.noise_px <= 0:
-            raise EngineError(f"engine setting noise_px must be positive, got {self.noise_px}")
-        if not 0 < self.outlier_prob < 1:
-            raise EngineError(f"engine setting outlier_prob must be in (0, 1), got {self.outlier_prob}")
+        for name in ("outlier_prob", "prune"):
+            value = getattr(self, name)
+            if not 0 < value < 1:
+                raise EngineError(f"engine setting {name} must be in (0, 1), got {value}")
+        if not 0 <= self.guide_fraction < 1:
+            raise EngineError(f"engine setting guide_fraction must be in [0, 1), got {self.guide_fraction}")
         near, far = self.init_distance
         if not 0 < near < far:
             raise EngineError(f"engine setting init_distance must be [near, far] with 0 < near < far, "
                               f"got {list(self.init_distance)}")
+        lo, hi = self.init_elevation
+        if not -90 < lo <= hi < 90:
+            raise EngineError(f"engine setting init_elevation must be [low, high] degrees within (-90, 90), "
+                              f"got {list(self.init_elevation)}")
+        if self.particles < self.n_tracks:
+            raise EngineError(f"engine setting particles ({self.particles}) must be at least the number of "
+                              f"tracks ({self.n_tracks})")
+
+    @property
+    def n_tracks(self) -> int:
+        return 1 + len(self.track_turns) + int(self.twin_track)
 
 
 @dataclass
 class Estimate:
     """What the engine recovers. qpos ``(T, 57)``: base pose in the camera frame (OpenCV axes) and the 50
-    angles; class_posterior ``(T, C)`` over ``classes``; filter_pos/filter_quat: the particle filter's
-    estimate before refinement; ms_per_frame ``(T,)``; frames before the first flows are filled with the
+    angles, from the track with the most evidence at each frame; class_posterior ``(T, C)`` over ``classes``,
+    the evidence-weighted mixture of the tracks' posteriors; filter_pos/filter_quat: that track's filter
+    estimate before refinement; n_tracks ``(T,)``; leader ``(T,)``: the origin of the leading track;
+    ms_per_frame ``(T,)``; timing: mean ms per frame of each stage. Frames before the first flows take the
     first estimate."""
 
     classes: np.ndarray
@@ -91,6 +130,8 @@ class Estimate:
     class_posterior: np.ndarray
     filter_pos: np.ndarray
     filter_quat: np.ndarray
+    n_tracks: np.ndarray
+    leader: np.ndarray
     ms_per_frame: np.ndarray
     timing: dict = field(default_factory=dict)
 
@@ -99,156 +140,288 @@ class Estimate:
         return str(self.classes[int(np.argmax(self.class_posterior[-1]))])
 
 
+def floor_log_prior(points: np.ndarray, quats: np.ndarray, positions: np.ndarray, up: np.ndarray,
+                    camera_height: float, config: TrackerConfig) -> np.ndarray:
+    """``(N,)`` log prior of base poses from a known floor: the body's lowest point (of its model points'
+    means ``points`` ``(N, P, 3)``, base frame) is on the floor, or in flight above it.
+
+    With ``h`` the lowest point's height above the floor (camera height plus the point's camera-frame
+    coordinate along ``up``): ``p(h) = (1 - f) N(h; 0, s^2) + f U(h; 0, H)`` for ``h >= 0``, the Gaussian tail
+    below, with ``f = floor_flight``, ``s = floor_std``, ``H = floor_flight_height``.
+    """
+    rot = geometry.to_matrix(quats)
+    heights = camera_height + np.einsum("i,nij,npj->np", up, rot, points) + positions @ up
+    h = heights.min(axis=1)
+    cfg = config
+    log_ground = np.log1p(-cfg.floor_flight) - 0.5 * (h / cfg.floor_std) ** 2 - np.log(np.sqrt(2 * np.pi) * cfg.floor_std)
+    log_flight = np.where((h >= 0) & (h <= cfg.floor_flight_height), np.log(cfg.floor_flight / cfg.floor_flight_height),
+                          -np.inf)
+    return np.logaddexp(log_ground, log_flight)
+
+
+def flow_log_likelihood_matrix(model_config: TrackerConfig, flows: np.ndarray, img, fps: float,
+                                intr: Intrinsics) -> np.ndarray:
+    """``(H, M)`` per-flow log-likelihoods under projected distributions, with the engine's settings."""
+    cfg = model_config
+    return flow_log_likelihoods(flows, img, cfg.noise_px, fps, intr.width, intr.height, cfg.outlier_prob,
+                                weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing)
+
+
+def occlusion(model: EngineModel, config: TrackerConfig) -> tuple[float, float] | None:
+    """``to_image``'s self-occlusion parameters (footprint radius, depth gap; metres), or None."""
+    if not config.self_occlusion:
+        return None
+    return 2.0 * model.spread * config.occlusion_radius, config.occlusion_depth
+
+
+def recognise_at(model: EngineModel, config: TrackerConfig, recognizer: Recognizer, flows: np.ndarray,
+                 intr: Intrinsics, fps: float, position: np.ndarray, quat: np.ndarray,
+                 camera_motion: np.ndarray | None = None) -> float:
+    """One recognition step at a base pose (camera frame): every active state's tempered emission, folded
+    into ``recognizer``. Returns the recursion's normaliser (0 for a frame without flows)."""
+    if len(flows) == 0:
+        return recognizer.update(None)
+    active = np.flatnonzero(recognizer.active().ravel())
+    img = to_image(intr, geometry.to_matrix(quat)[None], np.asarray(position)[None], model.dists.take(active),
+                   camera_motion, occlusion=occlusion(model, config))
+    log_b = np.zeros(recognizer.log_alpha.size)
+    log_b[active] = tempered(flow_log_likelihood_matrix(config, flows, img, fps, intr), config.n_eff_recognition)
+    return recognizer.update(log_b.reshape(recognizer.log_alpha.shape))
+
+
+def path_evidence(model: EngineModel, config: TrackerConfig, obs: Observation, positions: np.ndarray,
+                  quats: np.ndarray) -> np.ndarray:
+    """``(T,)`` per-frame evidence ``log p(y_t | y_<t, path)`` of a given base pose path ``(T, 3)``, ``(T, 4)``
+    (camera frame): what a track that followed exactly this path would accumulate."""
+    rec = Recognizer(model.db, config.start_spread, config.prune)
+    out = np.zeros(len(obs))
+    started = False
+    for t, flows in enumerate(obs.flows):
+        if not started and len(flows) == 0:
+            continue
+        if started:
+            rec.predict()
+        started = True
+        cam = None if obs.camera_motion is None else obs.camera_motion[t]
+        out[t] = recognise_at(model, config, rec, flows, obs.intrinsics, obs.fps, positions[t], quats[t], cam)
+    return out
+
+
 class Tracker:
-    """Runs the engine on an observation sequence; ``step`` also serves live use."""
+    """Runs the engine on an observation sequence; ``reset`` + ``step`` + ``result`` serve live use.
+
+    The tracker holds only what does not change between sequences (the model and the settings); every
+    sequence's state is created by ``reset``, with the generator it is given.
+    """
 
     def __init__(self, db: MotionDatabase, body: BodyModel, config: TrackerConfig = TrackerConfig(),
-                 rng: np.random.Generator | None = None):
-        self.db = db.validate()
-        self.body = body
+                 rng: np.random.Generator | None = None, model: EngineModel | None = None):
         self.config = config
+        self.model = model if model is not None else EngineModel.build(db, body, config.model_points,
+                                                                       config.model_seed)
         self.rng = rng if rng is not None else np.random.default_rng(0)
-        self.points = sample_surface(body, config.model_points, np.random.default_rng(config.model_seed))
-        self.spread = patch_std(body, config.model_points)
-        self.dists = database_point_distributions(db, body, self.points, self.spread)
-        C, K, _ = db.means_.shape
-        self._state_angles = db.means_[:, :, ANGLES].reshape(C * K, -1)
-        self._state_angle_var = db.covars_[:, :, ANGLES].reshape(C * K, -1)
-        z = geom_z_range(body, body.zero_qpos())
-        self.body_height = float(z[:, 1].max() - z[:, 0].min())   # for the initial depth guess only
 
     # --- one sequence ---------------------------------------------------------------------------
 
-    def run(self, obs: Observation, progress=None, base_pose: tuple[np.ndarray, np.ndarray] | None = None
-            ) -> Estimate:
-        """Track a whole sequence. ``base_pose`` ``((T, 3), (T, 4))`` replaces the particle filter by a
-        given baselink pose in the camera frame (the ground-truth-pose baseline)."""
+    def run(self, obs: Observation, progress=None, base_pose: tuple[np.ndarray, np.ndarray] | None = None,
+            rng: np.random.Generator | None = None) -> Estimate:
+        """Track a whole sequence. ``base_pose`` ``((T, 3), (T, 4))`` replaces the tracks by a given baselink
+        pose in the camera frame (the ground-truth-pose baseline). ``rng``: this sequence's generator (default:
+        the tracker's)."""
         obs.validate()
         if base_pose is not None and (len(base_pose[0]) != len(obs) or len(base_pose[1]) != len(obs)):
             raise EngineError(f"base_pose must have one pose per frame ({len(obs)})")
-        self.reset(obs.intrinsics, obs.fps)
+        self.reset(obs.intrinsics, obs.fps, rng)
         for t, flows in enumerate(obs.flows):
             cam = None if obs.camera_motion is None else obs.camera_motion[t]
-            self.step(flows, cam, None if base_pose is None else (base_pose[0][t], base_pose[1][t]))
+            self.step(flows, cam, None if base_pose is None else (base_pose[0][t], base_pose[1][t]),
+                      None if obs.gravity is None else obs.gravity[t],
+                      None if obs.camera_height is None else float(obs.camera_height[t]))
             if progress is not None:
                 progress(t)
         return self.result()
 
-    def reset(self, intr: Intrinsics, fps: float) -> None:
+    def reset(self, intr: Intrinsics, fps: float, rng: np.random.Generator | None = None) -> None:
         if not fps > 0:
             raise EngineError(f"fps must be positive, got {fps}")
+        cfg = self.config
         self.intr, self.fps = intr, float(fps)
-        self.filter = ParticleFilter(self.config.particles, self.rng, self.config.ess_fraction,
-                                     self.config.position_noise, self.config.rotation_noise)
-        self.recognizer = Recognizer(self.db, self.config.start_spread, self.config.prune)
-        self._started = False
+        self._rng = rng if rng is not None else self.rng
+        self._gravity: np.ndarray | None = None
+        self._height: float | None = None
+        self.tracks: list[Track] = []
         self._rows: list[tuple] = []
         self._pending: list = []      # given poses (or None) of frames before the first flows
-        self._timing = {"filter": 0.0, "recognition": 0.0, "recovery": 0.0}
+        self._timing = dict.fromkeys(STAGES, 0.0)
 
     def step(self, flows: np.ndarray, camera_motion: np.ndarray | None = None,
-             pose: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        cfg = self.config
+             pose: tuple[np.ndarray, np.ndarray] | None = None, gravity: np.ndarray | None = None,
+             camera_height: float | None = None) -> None:
+        """One frame: flows ``(M, 4)``; the camera's own velocity ``(6,)``; a given base pose (the
+        ground-truth-pose baseline); the camera prior: gravity ``(3,)`` (unit, camera frame) and the camera's
+        height above the floor (m)."""
         flows = np.asarray(flows, dtype=float).reshape(-1, 4)
+        self._gravity = None if gravity is None else np.asarray(gravity, dtype=float)
+        self._height = camera_height
         t0 = time.perf_counter()
-        if not self._started:
+        clock = [t0]
+
+        def lap(stage):
+            now = time.perf_counter()
+            self._timing[stage] += now - clock[0]
+            clock[0] = now
+
+        if not self.tracks:
             if len(flows) == 0:
                 self._pending.append(pose)
                 return
-            # A cloud init_factor times wider than the working size, narrowed by the first frame's flows.
-            n = self.filter.n
-            self.filter.n = n * cfg.init_factor
-            self.filter.initialise(self.intr, flows, cfg.init_distance, tuple(np.deg2rad(cfg.init_elevation)),
-                                   self.body_height)
-            if pose is None:
-                prior = self.recognizer.posterior.ravel()
-                img = to_image(self.intr, geometry.to_matrix(self.filter.quats), self.filter.positions,
-                               self.dists.mixture(prior), camera_motion)
-                ll = flow_log_likelihoods(flows, img, cfg.noise_px, self.fps, self.intr.width, self.intr.height,
-                                          cfg.outlier_prob,
-                                          weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing)
-                self.filter.select(tempered(ll, cfg.n_eff_filter), n)
-            else:
-                self.filter.select(np.zeros(self.filter.n), n)
-            self._started = True
+            self._start(flows, camera_motion, pose)
         else:
-            post = self.recognizer.posterior.ravel()
-            self.filter.predict(post @ self.dists.base_linear, post @ self.dists.base_angular, 1.0 / self.fps,
-                                camera_motion)
-            self.recognizer.predict()
-        W, H = self.intr.width, self.intr.height
-        active = np.flatnonzero(self.recognizer.active().ravel())
-        prior = self.recognizer.posterior.ravel()[active]
-        states = self.dists.take(active)
-
-        # Weight the particles under the belief's mixture.
-        t1 = time.perf_counter()
+            self._propose(camera_motion, pose)
+        lap("propose")
         if len(flows) and pose is None:
-            mix = states.mixture(prior)
-            img = to_image(self.intr, geometry.to_matrix(self.filter.quats), self.filter.positions, mix,
-                           camera_motion)
-            ll = flow_log_likelihoods(flows, img, cfg.noise_px, self.fps, W, H, cfg.outlier_prob,
-                                          weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing)
-            self.filter.update(tempered(ll, cfg.n_eff_filter))
-        pos, quat = self.filter.estimate() if pose is None else (np.asarray(pose[0]), np.asarray(pose[1]))
-        rot = geometry.to_matrix(quat)
+            self._weigh(flows, camera_motion)
+        for track in self.tracks:
+            track.estimate = (track.cloud.estimate() if pose is None
+                              else (np.asarray(pose[0], float), np.asarray(pose[1], float)))
+        lap("weigh")
+        self._recognise(flows, camera_motion)
+        lap("recognise")
+        self._recover(flows, camera_motion, fixed=pose is not None)
+        lap("recover")
+        self._manage()
+        lap("manage")
+        self._record(1e3 * (time.perf_counter() - t0))
 
-        # Recognise at the filter's estimate.
-        t2 = time.perf_counter()
-        log_b = np.zeros(self.dists.pos.shape[0])
-        if len(flows):
-            img = to_image(self.intr, rot[None], pos[None], states, camera_motion)
-            log_b[active] = tempered(flow_log_likelihoods(flows, img, cfg.noise_px, self.fps, W, H,
-                                                          cfg.outlier_prob,
-                                          weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing), cfg.n_eff_recognition)
-        self.recognizer.update(log_b.reshape(self.recognizer.log_alpha.shape))
+    # --- stages ---------------------------------------------------------------------------------
 
-        # Recover the angles of the recognised primitive, refine them with the pose, feed the pose back.
-        t3 = time.perf_counter()
-        cls_post = self.recognizer.class_posterior
-        K = self.db.means_.shape[1]
-        best = int(np.argmax(cls_post))
-        gamma = self.recognizer.state_posterior[best]
-        idx = best * K + np.arange(K)
-        theta0 = gamma @ self._state_angles[idx]
-        mix_rates = gamma @ self.db.means_[best][:, ANGLE_RATES]
-        mix_rate_var = gamma @ (self.db.covars_[best][:, ANGLE_RATES]
-                                + (self.db.means_[best][:, ANGLE_RATES] - mix_rates) ** 2)
-        var = gamma @ (self._state_angle_var[idx] + (self._state_angles[idx] - theta0) ** 2)
-        angles, pos_r, rot_r = theta0, pos, rot
-        if len(flows):
-            f = self.filter
-            spread = np.sqrt(np.average((f.positions - pos) ** 2, axis=0, weights=f.weights))
-            spread = np.maximum(spread, cfg.refine_position_std)
-            mix = self.dists.take(idx).mixture(gamma)
-            pos_r, rot_r = pos, rot
-            for it in range(cfg.em_iterations):
-                # E-step: soft assignment of flows to model points, first under the state belief, then at
-                # the current estimate (whose points only spread over their surface patch).
-                if it:
-                    mix = state_point_distributions(
-                        self.body, angles, np.zeros(50), mix_rates, mix_rate_var, mix.base_linear[0],
-                        np.zeros(3), mix.base_angular[0], np.zeros(3), self.points, self.spread)
-                img = to_image(self.intr, rot_r[None], pos_r[None], mix, camera_motion)
-                resp = responsibilities(flows, img, cfg.noise_px, self.fps, W, H, cfg.outlier_prob,
-                                        weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing)
-                # M-step: Gauss-Newton on angles and pose under the HMM prior and the filter's spread.
-                angles, pos_r, rot_r = refine_pose(self.body, self.points, self.intr, flows, resp, theta0,
-                                                   np.sqrt(var), pos, rot, spread, 0.3, cfg.noise_px,
-                                                   self.spread, cfg.refine_iterations, start=(angles, pos_r, rot_r),
-                                                   fix_pose=pose is not None)
-            if pose is None:
-                self.filter.inject(pos_r, geometry.from_matrix(rot_r), cfg.inject_fraction, 0.5 * spread, 0.05)
-                self.filter.inject_jumps(cfg.jump_fraction)
-        t4 = time.perf_counter()
-        self._timing["filter"] += t2 - t1
-        self._timing["recognition"] += t3 - t2
-        self._timing["recovery"] += t4 - t3
-        row = (np.concatenate([pos_r, geometry.from_matrix(rot_r), angles]), cls_post, pos, quat,
-               1e3 * (t4 - t0))
+    def _new_recognizer(self) -> Recognizer:
+        return Recognizer(self.model.db, self.config.start_spread, self.config.prune)
+
+    def _start(self, flows: np.ndarray, camera_motion: np.ndarray | None, pose) -> None:
+        """Spawn the tracks from the first frame with flows: a wide cloud narrowed by this frame's flows gives
+        the leading pose; the other tracks are its turns about the body's vertical and its twin."""
+        cfg, rng = self.config, self._rng
+        if pose is not None:
+            pos, quat = np.asarray(pose[0], float)[None], np.asarray(pose[1], float)[None]
+            self.tracks = [Track(ParticleCloud(pos, quat, np.zeros(1)), self._new_recognizer(), "given")]
+            return
+        n_wide = cfg.particles * cfg.init_factor
+        cameras = (camera_pitch(rng.uniform(*np.deg2rad(cfg.init_elevation), n_wide)) if self._gravity is None
+                   else level_world(self._gravity))
+        wide = initial_cloud(self.intr, flows, n_wide, cfg.init_distance, cameras, self.model.body_height, rng)
+        prior = self._new_recognizer().posterior.ravel()
+        img = to_image(self.intr, geometry.to_matrix(wide.quats), wide.positions, self.model.dists.mixture(prior),
+                       camera_motion, occlusion=occlusion(self.model, cfg))
+        wide.reweight(tempered(self._flow_ll(flows, img), cfg.n_eff_filter))
+        _, lead = wide.estimate()
+        spawn = [("lead", lead)] + [(f"turn{a:+g}", turned(lead[None], np.deg2rad(a))[0]) for a in cfg.track_turns]
+        if cfg.twin_track:
+            spawn.append(("twin", twin(lead[None], self._gravity)[0]))
+        n_each = cfg.particles // len(spawn)
+        for origin, centre in spawn:
+            # The wide cloud's own particles near the track's orientation carry positions that fit it; where
+            # too few are there, the lead's particles turned to it stand in.
+            near = geometry.angle_between(wide.quats, centre[None]) <= np.deg2rad(45.0)
+            weights = np.where(near, wide.weights, 0.0)
+            if weights.sum() > 0 and effective_sample_size(weights) >= cfg.min_spawn_ess:
+                cloud = wide.take(systematic_resample(weights, rng, n_each))
+            else:
+                lead_near = geometry.angle_between(wide.quats, lead[None]) <= np.deg2rad(45.0)
+                cloud = wide.take(systematic_resample(np.where(lead_near, wide.weights, 0.0), rng, n_each))
+                rel = geometry.multiply(geometry.conjugate(lead), centre)     # lead -> centre, body frame
+                cloud.quats = geometry.multiply(cloud.quats, np.broadcast_to(rel, cloud.quats.shape))
+            self.tracks.append(Track(cloud, self._new_recognizer(), origin))
+
+    def _propose(self, camera_motion: np.ndarray | None, pose) -> None:
+        cfg, dt = self.config, 1.0 / self.fps
+        n_each = cfg.particles // len(self.tracks)
+        for track in self.tracks:
+            if pose is not None:
+                track.cloud = ParticleCloud(np.asarray(pose[0], float)[None], np.asarray(pose[1], float)[None],
+                                            np.zeros(1))
+            else:
+                v, w = track.base_velocity(self.model.dists)
+                guide = guide_std = None
+                rec = track.recovered
+                if rec is not None and cfg.guide_fraction > 0:
+                    g_pos, g_quat = motion_mean(rec.position[None], geometry.from_matrix(rec.rotation)[None], v, w,
+                                                dt, camera_motion)
+                    guide = (g_pos[0], g_quat[0])
+                    guide_std = (0.5 * track.spread, cfg.guide_rotation_std)
+                track.cloud = propose(track.cloud, n_each, v, w, dt, self._process_noise(), self._rng, camera_motion,
+                                      guide, cfg.guide_fraction, guide_std)
+            track.recognizer.predict()
+
+    def _process_noise(self) -> ProcessNoise:
+        cfg = self.config
+        if self._gravity is None:
+            return ProcessNoise(cfg.position_noise, cfg.rotation_noise)
+        return ProcessNoise(cfg.position_noise, cfg.rotation_noise, cfg.tilt_noise, -self._gravity)
+
+    def _flow_ll(self, flows: np.ndarray, img) -> np.ndarray:
+        return flow_log_likelihood_matrix(self.config, flows, img, self.fps, self.intr)
+
+    def _weigh(self, flows: np.ndarray, camera_motion: np.ndarray | None) -> None:
+        """Every track's particles under its own belief, in one kernel call."""
+        mixes = PointDistributions.concatenate([t.belief_mixture(self.model.dists) for t in self.tracks])
+        sizes = [len(t.cloud) for t in self.tracks]
+        index = np.repeat(np.arange(len(self.tracks)), sizes)
+        pos = np.concatenate([t.cloud.positions for t in self.tracks])
+        quat = np.concatenate([t.cloud.quats for t in self.tracks])
+        img = to_image(self.intr, geometry.to_matrix(quat), pos, mixes, camera_motion, index,
+                       occlusion(self.model, self.config))
+        ll = tempered(self._flow_ll(flows, img), self.config.n_eff_filter)
+        if self._height is not None:
+            ll = ll + floor_log_prior(mixes.pos[index], quat, pos, -self._gravity, self._height, self.config)
+        for track, part in zip(self.tracks, np.split(ll, np.cumsum(sizes)[:-1])):
+            track.cloud.reweight(part)
+
+    def _recognise(self, flows: np.ndarray, camera_motion: np.ndarray | None) -> None:
+        """Each track's states scored at its pose; the recursion's normaliser is the track's new evidence."""
+        for track in self.tracks:
+            pos, quat = track.estimate
+            track.log_evidence += recognise_at(self.model, self.config, track.recognizer, flows, self.intr,
+                                               self.fps, pos, quat, camera_motion)
+
+    def _recover(self, flows: np.ndarray, camera_motion: np.ndarray | None, fixed: bool) -> None:
+        cfg = self.config
+        for track in self.tracks:
+            pos, quat = track.estimate
+            track.spread = (np.zeros(3) if fixed
+                            else np.maximum(track.cloud.spread(), cfg.refine_position_std))
+            angles, pos_r, rot_r = recover(self.model, flows, self.intr, self.fps, track.best_state_belief(), pos,
+                                           geometry.to_matrix(quat), np.maximum(track.spread, 1e-6), cfg,
+                                           camera_motion, fix_pose=fixed, occlusion=occlusion(self.model, cfg))
+            track.recovered = Recovered(angles, pos_r, rot_r)
+
+    def _manage(self) -> None:
+        """Drop tracks trailing the best by ``track_prune_nats``; of two tracks that met (orientation within
+        ``track_merge_deg`` and position within ``track_merge_m``), keep the one with more evidence."""
+        cfg = self.config
+        best = max(t.log_evidence for t in self.tracks)
+        kept = [t for t in self.tracks if t.log_evidence >= best - cfg.track_prune_nats]
+        kept.sort(key=lambda t: -t.log_evidence)
+        merged: list[Track] = []
+        for track in kept:
+            pos, quat = track.estimate
+            if not any(np.linalg.norm(pos - m.estimate[0]) < cfg.track_merge_m
+                       and geometry.angle_between(quat, m.estimate[1]) < np.deg2rad(cfg.track_merge_deg)
+                       for m in merged):
+                merged.append(track)
+        self.tracks = merged
+
+    def _record(self, ms: float) -> None:
+        evidence = np.array([t.log_evidence for t in self.tracks])
+        share = softmax(evidence)
+        post = share @ np.array([t.recognizer.class_posterior for t in self.tracks])
+        lead = self.tracks[int(np.argmax(evidence))]
+        rec = lead.recovered
+        row = (np.concatenate([rec.position, geometry.from_matrix(rec.rotation), rec.angles]), post / post.sum(),
+               lead.estimate[0], lead.estimate[1], len(self.tracks), lead.origin, ms)
         for given in self._pending:   # frames before the first flows take the first estimate (or their pose)
             first = row[0] if given is None else np.concatenate([given[0], given[1], row[0][7:]])
-            self._rows.append((first,) + row[1:4] + (0.0,))
+            self._rows.append((first,) + row[1:6] + (0.0,))
         self._pending = []
         self._rows.append(row)
 
@@ -256,9 +429,9 @@ class Tracker:
         if not self._rows:
             raise EngineError("no frame had any flow: nothing to estimate")
         for _ in self._pending:
-            self._rows.append(self._rows[-1][:4] + (0.0,))
+            self._rows.append(self._rows[-1][:6] + (0.0,))
         self._pending = []
-        qpos, post, fpos, fquat, ms = (np.array(x) for x in zip(*self._rows))
-        n = max(len(self._rows), 1)
-        return Estimate(self.db.classes_.copy(), qpos, post, fpos, fquat, ms,
+        qpos, post, fpos, fquat, n_tracks, leader, ms = (np.array(x) for x in zip(*self._rows))
+        n = len(self._rows)
+        return Estimate(self.model.db.classes_.copy(), qpos, post, fpos, fquat, n_tracks, leader, ms,
                         {k: 1e3 * v / n for k, v in self._timing.items()})

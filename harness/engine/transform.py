@@ -55,6 +55,12 @@ class PointDistributions:
     def take(self, index) -> "PointDistributions":
         return PointDistributions(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
 
+    @staticmethod
+    def concatenate(parts: list["PointDistributions"]) -> "PointDistributions":
+        """The states of several distributions, in order."""
+        return PointDistributions(*(np.concatenate([getattr(p, f) for p in parts])
+                                    for f in PointDistributions.__dataclass_fields__))
+
     def mixture(self, weights: np.ndarray) -> "PointDistributions":
         """The moment-matched single Gaussian of the states' mixture with ``weights`` (S,): one 'state'."""
         w = np.asarray(weights, dtype=float)
@@ -138,50 +144,73 @@ def database_point_distributions(db: MotionDatabase, body: BodyModel, points: Su
 @dataclass(frozen=True)
 class ImageDistributions:
     """Per hypothesis ``H`` and model point ``P``: pixel mean ``(H, P, 2)`` and covariance ``(H, P, 2, 2)``,
-    image-velocity mean (px/s) and covariance, and whether the point faces the camera ``(H, P)``."""
+    image-velocity mean (px/s) and covariance, and the point's visibility ``(H, P)`` in [0, 1]: 0 when it
+    faces away from the camera or is behind it, else the soft depth-order test of ``to_image``."""
 
     pix: np.ndarray
     pix_cov: np.ndarray
     flow: np.ndarray
     flow_cov: np.ndarray
-    facing: np.ndarray
+    visibility: np.ndarray
 
 
 def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDistributions,
-             camera_motion: np.ndarray | None = None) -> ImageDistributions:
+             camera_motion: np.ndarray | None = None, state_index: np.ndarray | None = None,
+             occlusion: tuple[float, float] | None = None) -> ImageDistributions:
     """Project body-frame point distributions for ``H`` base poses ``rot (H, 3, 3)``, ``trans (H, 3)``.
 
-    One pose and ``S`` states, ``H`` poses and one state, or ``H`` poses and ``H`` states (paired): the
-    output has one row per pair.
-    ``camera_motion``: ``(6,)`` camera linear and angular velocity in its own frame, or None.
+    Visibility: a point facing away from the camera (outward normal) or behind it is invisible. With
+    ``occlusion = (radius, depth)`` (metres), the body also hides itself: every point ``q`` nearer the camera
+    than point ``p`` by more than ``depth`` covers it with a Gaussian footprint of the surface patch it stands
+    for, ``v_p = prod_q (1 - exp(-d_pq^2 / (2 r_q^2)))``, ``d_pq`` the pixel distance of their means and
+    ``r_q = f_y radius / z_q`` (footprints beyond three radii are ignored). Without it, visibility is the
+    facing test alone.
+
+    Pairing of poses and the ``S`` states of ``dist``: one pose and ``S`` states, ``H`` poses and one state,
+    ``H`` poses and ``H`` states (paired), or ``state_index`` ``(H,)``: pose ``h`` with state
+    ``state_index[h]`` (every particle of a track with its track's belief, without copying distributions).
+    The output has one row per pair. ``camera_motion``: ``(6,)`` camera linear and angular velocity in its
+    own frame, or None.
     """
     rot = np.ascontiguousarray(rot, dtype=float).reshape(-1, 3, 3)
     trans = np.ascontiguousarray(trans, dtype=float).reshape(-1, 3)
     ego = np.zeros(6) if camera_motion is None else np.asarray(camera_motion, dtype=float)
     S, P = dist.pos.shape[:2]
-    H = max(len(rot), S)
-    if len(rot) not in (1, H) or S not in (1, H):
-        raise ValueError(f"{S} states for {len(rot)} poses: give one of either, or as many of each")
+    if state_index is None:
+        H = max(len(rot), S)
+        if len(rot) not in (1, H) or S not in (1, H):
+            raise ValueError(f"{S} states for {len(rot)} poses: give one of either, or as many of each")
+        state_index = np.zeros(H, dtype=np.int64) if S == 1 else np.arange(H)
+        pose_index = np.zeros(H, dtype=np.int64) if len(rot) == 1 else np.arange(H)
+    else:
+        state_index = np.asarray(state_index, dtype=np.int64)
+        H = len(state_index)
+        if len(rot) != H or (H and (state_index.min() < 0 or state_index.max() >= S)):
+            raise ValueError(f"state_index must give one of {S} states for each of the {len(rot)} poses")
+        pose_index = np.arange(H)
     out = (np.empty((H, P, 2)), np.empty((H, P, 2, 2)), np.empty((H, P, 2)), np.empty((H, P, 2, 2)),
-           np.empty((H, P), dtype=np.bool_))
-    _project_kernel(rot, trans, *(np.ascontiguousarray(a) for a in (dist.pos, dist.pos_cov, dist.vel,
-                    dist.vel_cov, dist.normal)), intr.fx, intr.fy, intr.cx, intr.cy, ego, *out)
+           np.empty((H, P)))
+    radius, depth = (0.0, 0.0) if occlusion is None else (float(occlusion[0]), float(occlusion[1]))
+    _project_kernel(rot, trans, pose_index, state_index, *(np.ascontiguousarray(a) for a in (
+        dist.pos, dist.pos_cov, dist.vel, dist.vel_cov, dist.normal)), intr.fx, intr.fy, intr.cx, intr.cy, ego,
+        radius, depth, *out)
     return ImageDistributions(*out)
 
 
 @numba.njit(cache=True)
-def _project_kernel(rot, trans, pos, pos_cov, vel, vel_cov, normal, fx, fy, cx, cy, ego,
-                    pix, pix_cov, flow, flow_cov, facing):
+def _project_kernel(rot, trans, pose_index, state_index, pos, pos_cov, vel, vel_cov, normal, fx, fy, cx, cy, ego,
+                    occ_radius, occ_depth, pix, pix_cov, flow, flow_cov, visibility):
     """The loop of ``to_image``: X = R x + t, Xdot = R xdot - v_c - w_c x X, u = pi(X), and the covariances
-    mapped by PR = d(u)/dX R (one fused pass; the numpy version built (H, P, 2, 3) temporaries)."""
+    mapped by PR = d(u)/dX R (one fused pass; the numpy version built (H, P, 2, 3) temporaries), then the
+    depth-order visibility of each hypothesis' points."""
     H, P = pix.shape[0], pos.shape[1]
-    one_state, one_pose = pos.shape[0] == 1, rot.shape[0] == 1
     PR = np.empty((2, 3))
     X = np.empty(3)
     Xd = np.empty(3)
+    depth = np.empty(P)
     for h in range(H):
-        s = 0 if one_state else h
-        g = 0 if one_pose else h
+        s = state_index[h]
+        g = pose_index[h]
         R = rot[g]
         for p in range(P):
             for i in range(3):
@@ -194,7 +223,8 @@ def _project_kernel(rot, trans, pos, pos_cov, vel, vel_cov, normal, fx, fy, cx, 
             for i in range(3):
                 n_dot_x += (R[i, 0] * normal[s, p, 0] + R[i, 1] * normal[s, p, 1] + R[i, 2] * normal[s, p, 2]) * X[i]
             z = X[2]
-            facing[h, p] = (n_dot_x < 0.0) and (z > MIN_DEPTH)
+            depth[p] = z
+            visibility[h, p] = 1.0 if (n_dot_x < 0.0) and (z > MIN_DEPTH) else 0.0
             if z <= MIN_DEPTH:
                 z = 1.0
             iz = 1.0 / z
@@ -221,3 +251,26 @@ def _project_kernel(rot, trans, pos, pos_cov, vel, vel_cov, normal, fx, fy, cx, 
                     pix_cov[h, p, c, r] = sp
                     flow_cov[h, p, r, c] = sv
                     flow_cov[h, p, c, r] = sv
+        if occ_radius > 0.0:
+            _self_occlusion(pix[h], depth, fy * occ_radius, occ_depth, visibility[h])
+
+
+@numba.njit(cache=True)
+def _self_occlusion(pix, depth, focal_radius, min_gap, visibility):
+    """Multiply ``visibility`` ``(P,)`` by the Gaussian footprints of the nearer points (see ``to_image``)."""
+    P = len(depth)
+    for p in range(P):
+        if visibility[p] == 0.0:
+            continue
+        v = 1.0
+        for q in range(P):
+            zq = depth[q]
+            if q == p or zq <= MIN_DEPTH or zq >= depth[p] - min_gap:
+                continue
+            r = focal_radius / zq
+            du = pix[p, 0] - pix[q, 0]
+            dv = pix[p, 1] - pix[q, 1]
+            d2 = du * du + dv * dv
+            if d2 < 9.0 * r * r:
+                v *= 1.0 - np.exp(-0.5 * d2 / (r * r))
+        visibility[p] = v

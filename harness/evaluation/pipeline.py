@@ -132,7 +132,8 @@ def scene_spec(cfg: Scenario, rng: np.random.Generator):
                    width=cam.width, height=cam.height, look_at_height=cam.look_at_height, motion=cam.motion,
                    orbit_rate=cam.orbit_rate),
         OccluderSpec(preset, cfg.occluders.amount, occ_seed),
-        ObservationSpec(mode=obs.mode, noise_px=obs.noise_px, dropout=obs.dropout, outliers=obs.outliers))
+        ObservationSpec(mode=obs.mode, noise_px=obs.noise_px, dropout=obs.dropout, outliers=obs.outliers,
+                        camera_prior=obs.camera_prior))
 
 
 def tracker_config(cfg: Scenario) -> TrackerConfig:

@@ -108,6 +108,7 @@ class ObservationConfig(_Section):
     noise_px: float = Field(1.0, ge=0.0)                # std of pixel noise on positions, pixels
     dropout: float = Field(0.0, ge=0.0, lt=1.0)         # probability a visible flow is dropped
     outliers: float = Field(0.0, ge=0.0, lt=1.0)        # fraction of flows replaced by random outliers
+    camera_prior: Literal["none", "gravity", "floor"] = "none"   # what the camera knows of its own pose
 
 
 class EngineConfig(_Section):

@@ -198,8 +198,12 @@ def simulate(motion: Motion, spec: SceneSpec, rng: np.random.Generator, body: Bo
         frames = geometric_flows(setup.pixels, visible, motion.fps, spec.observation.noise_px,
                                  traj.intrinsics, rng)
     flows, ids = finish_frames(frames, spec.observation, traj.intrinsics, rng)
+    prior = spec.observation.camera_prior
+    # World z is up and the floor is z = 0: gravity in the camera frame is R^T (0, 0, -1), the height is z.
+    gravity = -traj.rot[:, 2, :] if prior in ("gravity", "floor") else None
+    height = traj.pos[:, 2].copy() if prior == "floor" else None
     observation = Observation(motion.fps, traj.intrinsics, flows,
-                              camera_velocity(traj, motion.fps) if traj.moving else None)
+                              camera_velocity(traj, motion.fps) if traj.moving else None, gravity, height)
     rot_t = np.swapaxes(traj.rot, 1, 2)
     base_pos_cam = np.einsum("tij,tj->ti", rot_t, motion.base_pos - traj.pos)
     base_rot_cam = rot_t @ geometry.to_matrix(motion.base_quat)

@@ -13,6 +13,7 @@ from harness.errors import HarnessError
 
 CAMERA_MOTIONS = ("static", "orbit", "follow")
 OBSERVATION_MODES = ("geometric", "rendered")
+CAMERA_PRIORS = ("none", "gravity", "floor")
 MAX_OCCLUSION_AMOUNT = 0.9
 # Presets are registered in harness.scene.occluders; listed here so that a spec can be validated
 # without building any geometry. A test checks that the two lists agree.
@@ -116,12 +117,16 @@ class ObservationSpec:
     noise_px: standard deviation of the Gaussian pixel noise on each measured position (pixels).
     dropout: probability that a visible flow is dropped. outliers: outlier flows per frame as a fraction
     of the visible count (uniform positions in the image, uniform velocities, see ``OUTLIER_SPEED``).
+    camera_prior: what the camera knows of itself and writes into the observation: "none" (the paper's
+    setting), "gravity" (its tilt, as from an IMU: the gravity direction in the camera frame) or "floor"
+    (gravity and its height above the floor).
     """
 
     mode: str = "geometric"
     noise_px: float = 1.0
     dropout: float = 0.0
     outliers: float = 0.0
+    camera_prior: str = "none"
 
     def __post_init__(self):
         _require(self.mode in OBSERVATION_MODES, "observation.mode", self.mode,
@@ -132,6 +137,8 @@ class ObservationSpec:
                  self.dropout, "must be in [0, 1)")
         _require(0.0 <= _finite("observation.outliers", self.outliers) <= 10.0, "observation.outliers",
                  self.outliers, "must be in [0, 10] (outliers per visible flow)")
+        _require(self.camera_prior in CAMERA_PRIORS, "observation.camera_prior", self.camera_prior,
+                 f"must be one of {', '.join(CAMERA_PRIORS)}")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,52 @@
+"""What the engine knows before it sees anything: the database, the body, its own model points, and every
+database state's output distribution carried to those points (computed once, shared by every track and run)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from harness.body.kinematics import geom_z_range
+from harness.body.model import BodyModel
+from harness.body.surface import SurfacePoints, sample_surface
+from harness.engine.database import MotionDatabase
+from harness.engine.transform import PointDistributions, database_point_distributions, patch_std
+
+
+@dataclass(frozen=True)
+class EngineModel:
+    """The database in the body frame, ready for the image.
+
+    points: the engine's own area-uniform sample of the body surface (seeded independently of any marker);
+    spread: the per-axis std of the surface patch one point stands for (m); dists: every state's point
+    distributions, flattened to ``S = C * K`` in (class, state) order; db_means, db_covars: ``(S, 106)``;
+    body_height: standing height (m), used only by the first depth guess. Read-only after construction.
+    """
+
+    db: MotionDatabase
+    body: BodyModel
+    points: SurfacePoints
+    spread: float
+    dists: PointDistributions
+    db_means: np.ndarray
+    db_covars: np.ndarray
+    body_height: float
+
+    @classmethod
+    def build(cls, db: MotionDatabase, body: BodyModel, model_points: int, model_seed: int) -> "EngineModel":
+        db.validate()
+        points = sample_surface(body, model_points, np.random.default_rng(model_seed))
+        spread = patch_std(body, model_points)
+        C, K, D = db.means_.shape
+        z = geom_z_range(body, body.zero_qpos())
+        return cls(db, body, points, spread, database_point_distributions(db, body, points, spread),
+                   db.means_.reshape(C * K, D), db.covars_.reshape(C * K, D), float(z[:, 1].max() - z[:, 0].min()))
+
+    @property
+    def n_classes(self) -> int:
+        return self.db.means_.shape[0]
+
+    @property
+    def n_states(self) -> int:
+        return self.db.means_.shape[1]
