@@ -25,11 +25,11 @@ evaluate: $(STAMP)
 
 # CI regression: run scenarios/ci.yaml and compare with results/baseline/ under its tolerances.
 regress: $(STAMP)
-	$(PY) -m harness regress --scenario scenarios/ci.yaml --baseline results/baseline
+	$(PY) -m harness regress --scenario scenarios/ci.yaml --baseline results/baseline --fresh
 
 # Deliberately accept the current ci numbers as the new baseline (review the diff before committing it).
 rebaseline: $(STAMP)
-	$(PY) -m harness rebaseline --scenario scenarios/ci.yaml --baseline results/baseline
+	$(PY) -m harness rebaseline --scenario scenarios/ci.yaml --baseline results/baseline --fresh
 
 bench: $(STAMP)
 	$(PY) benchmarks/kinematics.py

@@ -19,7 +19,7 @@ from harness.evaluation.journal import read as read_journal
 from harness.evaluation.scenario import PROCEDURAL_CLASSES, parse_scenario
 
 TINY = {"name": "tiny", "seed": 5, "repeats": 2, "database": {"classes": ["walk", "run", "kick"]},
-        "test": {"demos_per_class": 1}, "methods": ["full", "no_database"],
+        "test": {"demos_per_class": 1}, "methods": ["full", "no_database"], "occluders": {"preset": "low_wall"},
         "sweep": {"markers.count": [10, 30], "occluders.amount": [0.0, 0.3]}}
 
 

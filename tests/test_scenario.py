@@ -27,12 +27,12 @@ def _error(raw) -> str:
      "s.yaml: database.classes[3]: unknown class 'wlak' (valid: walk, run,"),
     ({"name": "x", "markers": {"count": "many"}}, "s.yaml: markers.count: Input should be a valid integer"),
     ({"name": "x", "camera": {"azimuth": "left"}}, "s.yaml: camera.azimuth: Input should be a valid number"),
-    ({"name": "x", "sweep": {"markers.count": [10, -3]}}, "s.yaml: sweep['markers.count'][1]: Input should be greater"),
+    ({"name": "x", "sweep": {"markers.count": [10, -3]}}, "s.yaml: sweep['markers.count'][1]: at least one marker is needed (got -3)"),
     ({"name": "x", "sweep": {"markers.cont": [10]}}, "s.yaml: sweep['markers.cont']: unknown key (valid: "),
     ({"name": "x", "sweep": {"markers.count": 10}}, "s.yaml: sweep['markers.count']: must be a list"),
     ({"name": "x", "engine": {"init_distance": [5, 2]}}, "s.yaml: engine.init_distance: must be [near, far]"),
     ({"name": "x", "test": {"split": "all"}}, "s.yaml: test.split: 'all' does not fit database.source"),
-    ({"name": "x", "methods": ["full", "best"]}, "s.yaml: methods[1]: Input should be 'full'"),
+    ({"name": "x", "methods": ["full", "best"]}, "s.yaml: methods[1]: unknown method 'best' (valid: full, gt_base"),
     ({"seed": 3}, "s.yaml: name: required key is missing"),
 ])
 def test_errors_name_the_key_and_what_was_expected(raw, expected):

@@ -64,10 +64,12 @@ def _mean_ci(x: np.ndarray, seed: int) -> tuple[float, float, float]:
 
 
 def _colour(method: str) -> str:
-    """One colour per method in every panel and plot (matplotlib's default cycle, in METHODS order)."""
-    order = ("full", "gt_base", "no_database", "joint_space")
-    cycle = ("C0", "C1", "C2", "C3")
-    return cycle[order.index(method)] if method in order else "C7"
+    """One colour per method in every panel and plot: matplotlib's default cycle in registration order
+    (``harness.evaluation.methods``); C7 (grey) for unknown names."""
+    from harness.evaluation.methods import method_names
+
+    order = [m for m in method_names()]
+    return f"C{order.index(method) % 7 if order.index(method) < 7 else 8}" if method in order else "C7"
 
 
 def plot_against(rows: pd.DataFrame, key: str, path: Path, seed: int = 0) -> bool:

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from harness.evaluation.cache import stable_hash
+from harness.evaluation.methods import method_names
 from harness.evaluation.stats import N_BOOT, bootstrap_ci, mcnemar_exact, wilcoxon_paired
 from harness.io import write_text_atomic
 
@@ -26,13 +27,14 @@ RECOVERY = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", 
 SCENE = ("self_occlusion", "obstacle_occlusion", "n_frames", "mean_flows")
 TIMING = ("ms_per_frame",)
 METRICS = RECOGNITION + RECOVERY + SCENE + TIMING
-METHOD_ORDER = ("full", "gt_base", "no_database", "joint_space")
 HEADLINE = ("correct", "log_p_true", "mpjpe_cam_mm", "pa_mpjpe_mm", "mpjpe_pose_mm", "base_pos_err_m",
             "heading_err_deg", "tilt_err_deg", "angle_rms_deg", "reproj_px")
 
 
 def _method_rank(m: str) -> int:
-    return METHOD_ORDER.index(m) if m in METHOD_ORDER else len(METHOD_ORDER)
+    """Registration order of the methods (``harness.evaluation.methods``); unknown names last."""
+    order = method_names()
+    return order.index(m) if m in order else len(order)
 
 
 def _order(df: pd.DataFrame, by: list[str]) -> pd.DataFrame:

@@ -16,7 +16,6 @@ coordinates, so an array index ``k`` is the continuous coordinate ``k + 0.5``.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import TYPE_CHECKING
 
 import cv2
 import mujoco
@@ -24,10 +23,8 @@ import numpy as np
 
 from harness.scene.markers import DOT_GROUP
 from harness.scene.occluders import OCCLUDER_GROUP
+from harness.scene.setup import SceneSetup
 from harness.scene.visibility import VISIBLE
-
-if TYPE_CHECKING:
-    from harness.scene.simulate import SceneSetup
 
 DOT_THRESHOLD = 60          # greenness (0..255) above which a pixel belongs to a dot
 FB_MAX_PX = 0.5             # forward-backward Lucas-Kanade consistency, pixels
@@ -51,7 +48,7 @@ def scene_option(dots: bool) -> mujoco.MjvOption:
     return opt
 
 
-def render_frames(setup: "SceneSetup", qpos: np.ndarray, depth: bool = False, dots: bool = True,
+def render_frames(setup: SceneSetup, qpos: np.ndarray, depth: bool = False, dots: bool = True,
                   scale: int = 1) -> Iterator[np.ndarray]:
     """Yield the camera's images: RGB ``(H, W, 3) uint8``, or depth ``(H, W)`` metres along the optical axis.
 
@@ -133,7 +130,7 @@ def match_markers(points: np.ndarray, pixels: np.ndarray, visible: np.ndarray) -
     return np.where(dist[np.arange(len(points)), best] < MATCH_PX, idx[best], -1)
 
 
-def rendered_flows(setup: "SceneSetup", qpos: np.ndarray, fps: float) -> list[tuple[np.ndarray, np.ndarray]]:
+def rendered_flows(setup: SceneSetup, qpos: np.ndarray, fps: float) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per frame ``(rows (M, 4), marker ids (M,))`` from rendered images (unshuffled, no dropout)."""
     out: list[tuple[np.ndarray, np.ndarray]] = []
     prev_green, prev_dots = None, None
@@ -170,7 +167,7 @@ def _tangent_plane_depth(intr, normal_cam: np.ndarray, point_cam: np.ndarray, ce
     return np.where(np.isfinite(lam) & (lam > 0.0), lam, point_cam[:, 2])
 
 
-def depth_visible(setup: "SceneSetup", qpos: np.ndarray, tolerance: float = DEPTH_TOLERANCE,
+def depth_visible(setup: SceneSetup, qpos: np.ndarray, tolerance: float = DEPTH_TOLERANCE,
                   scale: int = DEPTH_SCALE, margin: float = DEPTH_MARGIN) -> np.ndarray:
     """Visibility from the renderer's depth buffer, ``(T, N)`` bool (an independent check of ray casting).
 

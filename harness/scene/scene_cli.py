@@ -6,7 +6,7 @@ import argparse
 
 import numpy as np
 
-from harness.cli import command
+from harness.commands import command
 from harness.errors import HarnessError
 
 ARROW_SECONDS = 0.1     # an arrow shows the displacement over this time (px/s times seconds = px)
