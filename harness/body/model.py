@@ -13,7 +13,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from harness.errors import ModelError
+from harness.errors import ModelError, UnknownNameError
 
 DEFAULT_MODEL_PATH = Path(__file__).resolve().parents[2] / "models" / "humanoid56.xml"
 N_ANGLES = 50
@@ -119,13 +119,13 @@ class BodyModel:
         try:
             return self.joint_names.index(joint_name)
         except ValueError:
-            raise KeyError(f"unknown joint {joint_name!r}; joints are named <body>_<axis>, "
+            raise UnknownNameError(f"unknown joint {joint_name!r}; joints are named <body>_<axis>, "
                            f"for example {self.joint_names[0]!r}") from None
 
     def body_id(self, body_name: str) -> int:
         bid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, body_name)
         if bid < 0:
-            raise KeyError(f"unknown body {body_name!r}; bodies: {', '.join(self.body_names[1:])}")
+            raise UnknownNameError(f"unknown body {body_name!r}; bodies: {', '.join(self.body_names[1:])}")
         return int(bid)
 
     def angles(self, qpos: np.ndarray) -> np.ndarray:

@@ -35,7 +35,7 @@ def _motion(args):
 
     if args.motion:
         return Motion.load(args.motion)
-    from harness.motion.performer import demonstrations   # lands later; imported only when asked for
+    from harness.motion.performer import demonstrations
 
     return demonstrations(args.label, 1, np.random.default_rng(args.seed), fps=30.0)[0]
 
