@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 
-.PHONY: setup test evaluate regress rebaseline bench clean
+.PHONY: setup test evaluate regress rebaseline check bench clean
 
 setup: $(STAMP)
 
@@ -31,9 +31,17 @@ regress: $(STAMP)
 rebaseline: $(STAMP)
 	$(PY) -m harness rebaseline --scenario scenarios/ci.yaml --baseline results/baseline --fresh
 
+# Acceptance checks that exit non-zero on a miss (scene geometry and rendering, the performer's nearest-class
+# requirement) and the retargeting table over the sample captures in ../shared/mocap/cmu. CI runs it.
+check: $(STAMP)
+	$(PY) benchmarks/scene_acceptance.py
+	$(PY) benchmarks/nearest_class.py
+	$(PY) benchmarks/retarget_manifest.py
+
 bench: $(STAMP)
 	$(PY) benchmarks/kinematics.py
 	$(PY) benchmarks/engine_speed.py
+	$(PY) benchmarks/dask_throughput.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache

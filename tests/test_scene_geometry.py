@@ -5,7 +5,7 @@ import warnings
 import mujoco
 import numpy as np
 import pytest
-from scene_motions import walk_motion
+from harness.motion.simple_walk import walk_motion
 
 from harness.body import forward_points
 from harness.errors import HarnessError

@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from scene_motions import walk_motion
+from harness.motion.simple_walk import walk_motion
 
 from harness import geometry
 from harness.body import body_origins, geom_z_range

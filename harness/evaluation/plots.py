@@ -152,7 +152,7 @@ def plot_class_heatmap(per_class: pd.DataFrame, classes: list[str], path: Path) 
     for r in per_class.itertuples(index=False):
         if r.class_true in classes:
             acc[classes.index(r.class_true), cols.index((r.method, r.condition))] = r.accuracy
-    fig, ax = plt.subplots(figsize=(1.6 + 0.75 * len(cols), 1.0 + 0.36 * len(classes)))
+    fig, ax = plt.subplots(figsize=(max(3.6, 1.6 + 0.75 * len(cols)), 1.0 + 0.36 * len(classes)))
     ax.imshow(np.nan_to_num(acc, nan=0.0), cmap="RdYlGn", vmin=0.0, vmax=1.0, aspect="auto")
     for (i, j), a in np.ndenumerate(acc):
         ax.text(j, i, "–" if np.isnan(a) else f"{a:.2f}", ha="center", va="center", fontsize=7)

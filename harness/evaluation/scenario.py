@@ -551,6 +551,23 @@ def _default_text(value: Any) -> str:
     return repr(value) if not isinstance(value, float) else f"{value:g}"
 
 
+def _field_comments(cls: type) -> dict[str, str]:
+    """The trailing ``# comment`` of each field line of a dataclass's source (the engine documents its settings
+    that way)."""
+    import inspect
+
+    try:
+        source = inspect.getsource(cls)
+    except (OSError, TypeError):
+        return {}
+    out = {}
+    for line in source.splitlines():
+        m = re.match(r"^\s+(\w+)\s*:[^#]*#\s*(.+)$", line)
+        if m:
+            out.setdefault(m.group(1), m.group(2).strip().replace("|", "/"))
+    return out
+
+
 @lru_cache(maxsize=1)
 def schema_markdown() -> str:
     """The generated rows of the schema table for the sections that come from the spec types and the engine
@@ -570,9 +587,10 @@ def schema_markdown() -> str:
             lines.append(f"| `{section}.{f.name}` | {default} | {meta.get('unit', '')} | {values} | "
                          f"{meta.get('meaning', '')} |")
     hints = typing.get_type_hints(TrackerConfig)
+    comments = _field_comments(TrackerConfig)
     for f in dataclasses.fields(TrackerConfig):
         ann = hints[f.name]
         kind = ann.__name__ if isinstance(ann, type) else str(ann).replace("typing.", "")
-        lines.append(f"| `engine.{f.name}` | {_default_text(_field_default(f))} | | {kind} | "
-                     f"{f.metadata.get('meaning', 'TrackerConfig (docs/engine.md)')} |")
+        meaning = f.metadata.get("meaning") or comments.get(f.name) or "see docs/engine.md"
+        lines.append(f"| `engine.{f.name}` | {_default_text(_field_default(f))} | | {kind} | {meaning} |")
     return "\n".join(lines) + "\n"

@@ -34,6 +34,10 @@ MERGED_AREA = 3.0         # blob area, relative to the median, above which a blo
 DEPTH_TOLERANCE = 5e-3     # m: buffer depth this far in front of the marker's tangent plane hides it
 DEPTH_MARGIN = 0.02        # m: buffer depth this far behind the tangent plane sees past the marker
 DEPTH_SCALE = 2            # depth check renders at this multiple of the camera resolution
+# Acceptance requirement of rendered flows (docs/scene.md; benchmarks/scene_acceptance.py, tests): at least this
+# fraction of the geometric flows recovered, with a median endpoint error of at most REQUIRED_MEDIAN_PX.
+REQUIRED_RECOVERY = 0.9
+REQUIRED_MEDIAN_PX = 0.5
 LK_WINDOW = (9, 9)         # px: small enough that a neighbouring dot rarely shares the window
 LK_LEVELS = 3
 
