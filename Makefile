@@ -19,9 +19,10 @@ $(STAMP): pyproject.toml
 test: $(STAMP)
 	$(PY) -m pytest -q
 
-# The main job: the default scenario, tables, plots and report under results/default/.
+# The main job: the default scenario, tables, plots and report under results/default/ (resumes an interrupted
+# run; runs of other code or another version of the scenario are set aside: --fresh).
 evaluate: $(STAMP)
-	$(PY) -m harness evaluate scenarios/default.yaml --jobs 2
+	$(PY) -m harness evaluate scenarios/default.yaml --jobs 2 --fresh
 
 # CI regression: run scenarios/ci.yaml and compare with results/baseline/ under its tolerances.
 regress: $(STAMP)

@@ -25,6 +25,7 @@ from harness.engine.recovery import fit_without_database
 from harness.evaluation import metrics
 from harness.motion import Motion
 from harness.observation import Observation
+from harness.scene.simulate import GroundTruth
 
 RECOGNITION_COLUMNS = ("class_pred", "correct", "frame_accuracy", "time_to_correct_s", "log_p_true",
                        "accuracy_curve")
@@ -52,7 +53,7 @@ class RunInputs:
     db: MotionDatabase
     motion: Motion
     obs: Observation
-    truth: object
+    truth: GroundTruth
     tracker: Callable[[], Tracker]
 
 

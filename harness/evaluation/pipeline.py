@@ -30,7 +30,8 @@ from harness.evaluation.runner import RunError, RunSpec
 from harness.evaluation.scenario import Scenario, scene_spec, tracker_config
 from harness.motion import Motion
 from harness.motion.performer import demonstrations, training_set
-from harness.scene.simulate import simulate
+from harness.observation import Observation
+from harness.scene.simulate import GroundTruth, simulate
 from harness.streams import named_stream
 from harness.version import code_version
 
@@ -138,7 +139,8 @@ def clear_caches() -> None:
 
 # --- one run --------------------------------------------------------------------------------------------
 
-def simulate_run(run: RunSpec, motion: Motion | None = None) -> tuple[Motion, object, object, BodyModel]:
+def simulate_run(run: RunSpec, motion: Motion | None = None
+                 ) -> tuple[Motion, Observation, GroundTruth, BodyModel]:
     """The run's scene, deterministically from its seed: the observed motion (as the subject performed it),
     the observation, the ground truth and the subject's body. ``motion``: the run's test motion if known."""
     cfg = run.config

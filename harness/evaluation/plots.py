@@ -65,11 +65,14 @@ def _mean_ci(x: np.ndarray, seed: int) -> tuple[float, float, float]:
 
 def _colour(method: str) -> str:
     """One colour per method in every panel and plot: matplotlib's default cycle in registration order
-    (``harness.evaluation.methods``); C7 (grey) for unknown names."""
+    (``harness.evaluation.methods``), skipping C7 (grey), which marks an unregistered name."""
     from harness.evaluation.methods import method_names
 
-    order = [m for m in method_names()]
-    return f"C{order.index(method) % 7 if order.index(method) < 7 else 8}" if method in order else "C7"
+    order = method_names()
+    if method not in order:
+        return "C7"
+    k = order.index(method) % 9
+    return f"C{k if k < 7 else k + 1}"
 
 
 def plot_against(rows: pd.DataFrame, key: str, path: Path, seed: int = 0) -> bool:
