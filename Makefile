@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 
-.PHONY: setup test evaluate regress rebaseline bench clean
+.PHONY: setup test evaluate regress rebaseline check bench clean
 
 setup: $(STAMP)
 
@@ -19,21 +19,30 @@ $(STAMP): pyproject.toml
 test: $(STAMP)
 	$(PY) -m pytest -q
 
-# The main job: the default scenario, tables, plots and report under results/default/.
+# The main job: the default scenario, tables, plots and report under results/default/ (resumes an interrupted
+# run; runs of other code or another version of the scenario are set aside: --fresh).
 evaluate: $(STAMP)
-	$(PY) -m harness evaluate scenarios/default.yaml --jobs 2
+	$(PY) -m harness evaluate scenarios/default.yaml --jobs 2 --fresh
 
 # CI regression: run scenarios/ci.yaml and compare with results/baseline/ under its tolerances.
 regress: $(STAMP)
-	$(PY) -m harness regress --scenario scenarios/ci.yaml --baseline results/baseline
+	$(PY) -m harness regress --scenario scenarios/ci.yaml --baseline results/baseline --fresh
 
 # Deliberately accept the current ci numbers as the new baseline (review the diff before committing it).
 rebaseline: $(STAMP)
-	$(PY) -m harness rebaseline --scenario scenarios/ci.yaml --baseline results/baseline
+	$(PY) -m harness rebaseline --scenario scenarios/ci.yaml --baseline results/baseline --fresh
+
+# Acceptance checks that exit non-zero on a miss (scene geometry and rendering, the performer's nearest-class
+# requirement) and the retargeting table over the sample captures in ../shared/mocap/cmu. CI runs it.
+check: $(STAMP)
+	$(PY) benchmarks/scene_acceptance.py
+	$(PY) benchmarks/nearest_class.py
+	$(PY) benchmarks/retarget_manifest.py
 
 bench: $(STAMP)
 	$(PY) benchmarks/kinematics.py
 	$(PY) benchmarks/engine_speed.py
+	$(PY) benchmarks/dask_throughput.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache

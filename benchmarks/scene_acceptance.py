@@ -16,19 +16,15 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-
-from scene_motions import walk_motion  # noqa: E402
-
-from harness.body import BodyModel  # noqa: E402
-from harness.scene import rendered  # noqa: E402
-from harness.scene.simulate import build_setup, simulate  # noqa: E402
-from harness.scene.spec import CameraSpec, ObservationSpec, OccluderSpec, SceneSpec  # noqa: E402
-from harness.scene.visibility import OUTSIDE, VISIBLE  # noqa: E402
+from harness.body import BodyModel
+from harness.motion.simple_walk import walk_motion
+from harness.scene import rendered
+from harness.scene.simulate import build_setup, simulate
+from harness.scene.spec import CameraSpec, ObservationSpec, OccluderSpec, SceneSpec
+from harness.scene.visibility import OUTSIDE, VISIBLE
 
 VIEWS = [dict(azimuth=30.0), dict(azimuth=90.0, elevation=20.0), dict(azimuth=200.0, distance=5.0),
          dict(azimuth=-60.0, elevation=0.0, distance=3.5)]
@@ -109,7 +105,7 @@ def main() -> int:
         fe.append(err)
         total += n
     fe = np.concatenate(fe)
-    check("rendered flows", np.median(fe) <= 0.5 and len(fe) / total >= 0.9,
+    check("rendered flows", np.median(fe) <= rendered.REQUIRED_MEDIAN_PX and len(fe) / total >= rendered.REQUIRED_RECOVERY,
           f"median endpoint error {np.median(fe):.3f} px/frame, recovered {len(fe) / total:.1%} of {total} "
           f"geometric flows")
 

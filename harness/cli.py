@@ -7,19 +7,17 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable
 
+# The command table: every module that registers subcommands (``harness.commands.command``), imported here so
+# that ``--help`` lists them all. Heavy imports stay inside the commands, so the table is cheap to load.
+import harness.engine.cli  # noqa: F401
+import harness.evaluation.cli  # noqa: F401
+import harness.evaluation.run_video  # noqa: F401
+import harness.motion.capture_cli  # noqa: F401
+import harness.motion.render_cli  # noqa: F401
+import harness.scene.scene_cli  # noqa: F401
+from harness.commands import COMMANDS, command
 from harness.errors import HarnessError
-
-_COMMANDS: dict[str, tuple[Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int]]] = {}
-
-
-def command(name: str, add_arguments: Callable[[argparse.ArgumentParser], None]):
-    """Register ``run(args) -> exit code`` as a subcommand."""
-    def register(run):
-        _COMMANDS[name] = (add_arguments, run)
-        return run
-    return register
 
 
 def _model_info_args(p: argparse.ArgumentParser) -> None:
@@ -43,23 +41,13 @@ def _model_info(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    _load_command_modules()
     parser = argparse.ArgumentParser(prog="harness", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    for name, (add_arguments, run) in sorted(_COMMANDS.items()):
+    for name, (add_arguments, run) in sorted(COMMANDS.items()):
         p = sub.add_parser(name, help=(run.__doc__ or "").strip().splitlines()[0] if run.__doc__ else None)
         add_arguments(p)
         p.set_defaults(_run=run)
     return parser
-
-
-def _load_command_modules() -> None:
-    """Modules that register commands; imported here so that ``--help`` lists them all."""
-    import harness.motion.render_cli  # noqa: F401
-    import harness.scene.scene_cli  # noqa: F401
-    import harness.motion.capture_cli  # noqa: F401
-    import harness.evaluation.cli  # noqa: F401
-    import harness.engine.cli  # noqa: F401
 
 
 def main(argv: list[str] | None = None) -> int:

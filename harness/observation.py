@@ -25,14 +25,27 @@ engine uses them when present and works without them.
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from harness.errors import EngineError
+from harness.errors import EngineError, HarnessError
 from harness.io import save_npz_atomic
 from harness.pinhole import Intrinsics
+
+
+def _why(exc: Exception) -> str:
+    """A file-format failure in words, without quoting the file's content."""
+    if isinstance(exc, EOFError) or (isinstance(exc, OSError) and not isinstance(exc, zipfile.BadZipFile)):
+        return "empty or truncated"
+    if isinstance(exc, zipfile.BadZipFile):
+        return "not an .npz archive or truncated"
+    return f"malformed arrays: {type(exc).__name__}"
+
+
+MAX_FRAMES = 10_000_000     # a larger frame count is a corrupt file, not a recording
 
 
 class ObservationError(EngineError):
@@ -146,12 +159,22 @@ class Observation:
                             for name in ("camera_motion", "gravity", "camera_height")}
         except FileNotFoundError:
             raise ObservationError(f"{path}: no such observation file") from None
-        except (KeyError, ValueError, OSError) as exc:
-            raise ObservationError(f"{path}: not an observation file ({exc})") from None
-        if flows.ndim != 2 or flows.shape[1] != 4 or len(frame) != len(flows):
+        except KeyError as exc:
+            raise ObservationError(f"{path}: not an observation file (no array {exc.args[0]!r})") from None
+        except (ValueError, TypeError, IndexError, OSError, EOFError, zipfile.BadZipFile) as exc:
+            # Empty, truncated or foreign files: name the kind of failure, never the file's bytes.
+            raise ObservationError(f"{path}: not an observation file ({_why(exc)})") from None
+        except HarnessError as exc:        # intrinsics that describe no camera
+            raise ObservationError(f"{path}: {exc}") from None
+        if n_frames < 0 or n_frames > MAX_FRAMES:
+            raise ObservationError(f"{path}: 'n_frames' must be in [0, {MAX_FRAMES}], got {n_frames}")
+        if flows.ndim != 2 or flows.shape[1] != 4 or frame.ndim != 1 or len(frame) != len(flows):
             raise ObservationError(f"{path}: 'flows' must be (N, 4) with one 'frame' index per row")
         if len(frame) and (frame.min() < 0 or frame.max() >= n_frames or np.any(np.diff(frame) < 0)):
             raise ObservationError(f"{path}: 'frame' indices must be non-decreasing and in [0, n_frames)")
         bounds = np.searchsorted(frame, np.arange(n_frames + 1))
-        return cls(fps, intr, [flows[bounds[t]:bounds[t + 1]] for t in range(n_frames)], **optional)
+        try:
+            return cls(fps, intr, [flows[bounds[t]:bounds[t + 1]] for t in range(n_frames)], **optional).validate()
+        except ObservationError as exc:
+            raise ObservationError(f"{path}: {exc}") from None
 

@@ -16,6 +16,9 @@ from harness.errors import HarnessError
 from harness.io import write_atomic
 
 
+ARROW_SECONDS = 0.1     # a flow arrow shows the displacement over this time (px/s times seconds = px)
+
+
 class VideoError(HarnessError):
     """A video that cannot be written."""
 
@@ -93,3 +96,15 @@ def render_motion(model: mujoco.MjModel, qpos: np.ndarray, width: int = 480, hei
             if spheres is not None:
                 add_spheres(renderer.scene, spheres[t], sphere_radius, sphere_rgba)
             yield renderer.render().copy()
+
+
+def draw_flows(rgb: np.ndarray, flows: np.ndarray, outlier: np.ndarray | None = None) -> np.ndarray:
+    """Arrows from ``p - flow * ARROW_SECONDS`` to ``p`` for rows ``(u, v, du, dv)``; a new RGB image."""
+    import cv2
+
+    img = np.ascontiguousarray(rgb.copy())
+    for k, (u, v, du, dv) in enumerate(flows):
+        colour = (255, 60, 60) if outlier is not None and outlier[k] else (255, 230, 0)
+        start = (int(round(u - du * ARROW_SECONDS)), int(round(v - dv * ARROW_SECONDS)))
+        cv2.arrowedLine(img, start, (int(round(u)), int(round(v))), colour, 1, cv2.LINE_AA, tipLength=0.3)
+    return img

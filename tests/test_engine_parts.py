@@ -13,8 +13,8 @@ from harness import geometry
 from harness.body import forward_points, sample_surface
 from harness.engine import MotionDatabase, Recognizer, motion_features, recognize_features
 from harness.engine.likelihood import flow_log_likelihoods, responsibilities, tempered
-from harness.engine.particle_filter import (ParticleFilter, effective_sample_size, systematic_resample,
-                                            upright_orientations)
+from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
+                                            motion_mean, propose, systematic_resample, upright_orientations)
 from harness.engine.recovery import refine_pose
 from harness.engine.transform import ImageDistributions, patch_std
 from harness.errors import EngineError
@@ -81,8 +81,9 @@ def _random_image_distributions(rng, H, P):
     flow = rng.normal(0, 30, (H, P, 2))
     A = rng.normal(0, 2, (H, P, 2, 2))
     B = rng.normal(0, 10, (H, P, 2, 2))
+    visibility = np.where(rng.random((H, P)) < 0.7, rng.uniform(0.05, 1.0, (H, P)), 0.0)
     return ImageDistributions(pix, A @ np.swapaxes(A, -1, -2) + 4 * np.eye(2), flow,
-                              B @ np.swapaxes(B, -1, -2) + 25 * np.eye(2), rng.random((H, P)) < 0.7)
+                              B @ np.swapaxes(B, -1, -2) + 25 * np.eye(2), visibility)
 
 
 def _gauss(x, mean, cov):
@@ -90,27 +91,60 @@ def _gauss(x, mean, cov):
     return np.exp(-0.5 * d @ np.linalg.solve(cov, d)) / (2 * np.pi * np.sqrt(np.linalg.det(cov)))
 
 
-def test_flow_likelihood_matches_brute_force(rng):
-    H, P, M = 3, 7, 5
+def _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing):
+    """The likelihood's rule written out with Python loops: per-flow log-likelihoods and responsibilities of
+    hypothesis ``h`` (the position gate, visibility-proportional prior weights, EM on the weights)."""
+    vmax = 0.25 * max(W, Hh) * fps
+    out_density = eps / (W * Hh * np.pi * vmax**2)
+    M, P = len(flows), img.pix.shape[1]
+    vis = img.visibility[h]
+    dens = np.zeros((M, P))
+    for m in range(M):
+        for p in range(P):
+            if vis[p] <= 0:
+                continue
+            cov = img.pix_cov[h, p] + noise**2 * np.eye(2)
+            d = flows[m, :2] - img.pix[h, p]
+            if d @ np.linalg.solve(cov, d) > 60.0:           # the gate
+                continue
+            dens[m, p] = (_gauss(flows[m, :2], img.pix[h, p], cov)
+                          * _gauss(flows[m, 2:], img.flow[h, p], img.flow_cov[h, p] + 2 * (noise * fps) ** 2 * np.eye(2)))
+    prior = vis / vis.sum()
+    weight = prior.copy()
+
+    def resp_of(weight):
+        return np.array([[(1 - eps) * weight[p] * dens[m, p] / ((1 - eps) * weight @ dens[m] + out_density)
+                          for p in range(P)] for m in range(M)])
+
+    for _ in range(iterations):
+        r = resp_of(weight)
+        weight = (r.sum(axis=0) + smoothing * prior) / (r.sum() + smoothing)
+    ll = np.array([np.log((1 - eps) * weight @ dens[m] + out_density) for m in range(M)])
+    return ll, resp_of(weight)
+
+
+@pytest.mark.parametrize("iterations, smoothing", [(0, 0.0), (2, 10.0), (3, 0.5)])
+def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations, smoothing):
+    H, P, M = 3, 7, 6
     img = _random_image_distributions(rng, H, P)
-    flows = np.concatenate([rng.uniform(0, 100, (M, 2)), rng.normal(0, 30, (M, 2))], axis=1)
+    flows = np.concatenate([img.pix[0, :M] + rng.normal(0, 3, (M, 2)), rng.normal(0, 30, (M, 2))], axis=1)
+    flows[-1, :2] = [5000.0, -300.0]                      # far from every point: an outlier
     noise, fps, W, Hh, eps = 1.5, 30.0, 640, 480, 0.05
-    got = flow_log_likelihoods(flows, img, noise, fps, W, Hh, eps)
-    vmax = 0.25 * 640 * fps
+    got = flow_log_likelihoods(flows, img, noise, fps, W, Hh, eps, weight_iterations=iterations,
+                               smoothing=smoothing)
     for h in range(H):
-        facing = np.flatnonzero(img.facing[h])
-        for m in range(M):
-            s = sum(_gauss(flows[m, :2], img.pix[h, p], img.pix_cov[h, p] + noise**2 * np.eye(2))
-                    * _gauss(flows[m, 2:], img.flow[h, p], img.flow_cov[h, p] + 2 * (noise * fps) ** 2 * np.eye(2))
-                    for p in facing)
-            expect = np.log((1 - eps) * s / max(len(facing), 1) + eps / (W * Hh * np.pi * vmax**2))
-            assert got[h, m] == pytest.approx(expect, rel=1e-6)  # the gate drops terms below e^-30
-    r = responsibilities(flows, ImageDistributions(*(getattr(img, k)[:1] for k in ("pix", "pix_cov", "flow",
-                         "flow_cov", "facing"))), noise, fps, W, Hh, eps)
-    # Responsibilities plus the outlier share sum to one; and they follow the same terms.
-    out_share = eps / (W * Hh * np.pi * vmax**2) / np.exp(got[0])
-    np.testing.assert_allclose(r.sum(axis=1) + out_share, 1.0, atol=1e-9)
-    assert np.all(r[:, ~img.facing[0]] == 0)
+        ll, resp = _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing)
+        np.testing.assert_allclose(got[h], ll, rtol=1e-9)
+        one = ImageDistributions(*(getattr(img, k)[h:h + 1] for k in ("pix", "pix_cov", "flow", "flow_cov",
+                                                                        "visibility")))
+        r = responsibilities(flows, one, noise, fps, W, Hh, eps, weight_iterations=iterations, smoothing=smoothing)
+        np.testing.assert_allclose(r, resp, rtol=1e-9, atol=1e-300)
+        assert np.all(r[:, img.visibility[h] == 0] == 0)
+    # With every point invisible, every flow is an outlier.
+    none = ImageDistributions(img.pix, img.pix_cov, img.flow, img.flow_cov, np.zeros((H, P)))
+    vmax = 0.25 * 640 * fps
+    np.testing.assert_allclose(flow_log_likelihoods(flows, none, noise, fps, W, Hh, eps),
+                               np.log(eps / (W * Hh * np.pi * vmax**2)))
 
 
 def test_tempering_counts_a_frame_as_at_most_n_eff_flows():
@@ -135,19 +169,38 @@ def test_systematic_resampling_is_unbiased_and_low_variance(rng):
     assert effective_sample_size(np.eye(10)[0] + 1e-300) == pytest.approx(1.0)
 
 
-def test_particle_filter_estimate_and_prediction(rng):
-    pf = ParticleFilter(500, rng, position_noise=0.0, rotation_noise=0.0)
-    q = upright_orientations(np.full(500, 0.3), np.full(500, 0.1))
-    pf.positions = np.tile([0.1, 0.2, 4.0], (500, 1)) + rng.normal(0, 0.01, (500, 3))
-    pf.quats = q
-    pos, quat = pf.estimate()
+def test_particle_cloud_estimate_and_motion_model(rng):
+    q = upright_orientations(np.full(500, 0.3), camera_pitch(0.1))
+    cloud = ParticleCloud(np.tile([0.1, 0.2, 4.0], (500, 1)) + rng.normal(0, 0.01, (500, 3)), q,
+                          np.full(500, -np.log(500)))
+    pos, quat = cloud.estimate()
     np.testing.assert_allclose(pos, [0.1, 0.2, 4.0], atol=0.003)
     assert geometry.angle_between(quat, q[0]) < 1e-9
-    # One second of moving forward at 1 m/s in the base frame moves the cloud along the body's x axis.
-    pf.predict(np.array([1.0, 0, 0]), np.zeros(3), 1.0)
-    np.testing.assert_allclose(pf.estimate()[0] - pos, geometry.rotate(q[0], np.array([1.0, 0, 0])), atol=1e-9)
-    with pytest.raises(EngineError, match="at least one particle"):
-        ParticleFilter(0, rng)
+    # One second of moving forward at 1 m/s in the base frame moves the poses along the body's x axis.
+    moved, _ = motion_mean(cloud.positions, cloud.quats, np.array([1.0, 0, 0]), np.zeros(3), 1.0)
+    np.testing.assert_allclose(moved - cloud.positions, np.tile(geometry.rotate(q[0], np.array([1.0, 0, 0])),
+                                                                 (500, 1)), atol=1e-12)
+
+
+def test_mixture_proposal_is_importance_weighted(rng):
+    """Particles proposed around a guide far from the motion model carry weights pi/q: the weighted cloud
+    has the prior predictive's moments (checked against the bootstrap proposal), the unweighted one not."""
+    n_parent = 40
+    parents = ParticleCloud(rng.normal(0, 0.05, (n_parent, 3)) + [0.0, 0.0, 4.0],
+                            geometry.exp(rng.normal(0, 0.1, (n_parent, 3))), np.log(rng.dirichlet(np.ones(n_parent))))
+    noise = ProcessNoise(0.15, 0.3)
+    guide = (np.array([0.3, 0.0, 4.0]), geometry.exp(np.array([0.0, 0.2, 0.0])))
+    bootstrap = propose(parents, 40000, np.zeros(3), np.zeros(3), 1 / 30, noise, rng)
+    guided = propose(parents, 40000, np.zeros(3), np.zeros(3), 1 / 30, noise, rng, guide=guide,
+                     guide_fraction=0.5, guide_std=(np.full(3, 0.1), 0.05))
+    mean_b = bootstrap.weights @ bootstrap.positions
+    mean_g = guided.weights @ guided.positions
+    np.testing.assert_allclose(mean_g, mean_b, atol=0.005)
+    assert guided.positions.mean(axis=0)[0] - mean_b[0] > 0.1         # unweighted, the guide would pull it
+    var_b = bootstrap.weights @ (bootstrap.positions - mean_b) ** 2
+    var_g = guided.weights @ (guided.positions - mean_g) ** 2
+    np.testing.assert_allclose(var_g, var_b, rtol=0.1)
+    np.testing.assert_allclose(guided.weights.sum(), 1.0)
 
 
 def test_refinement_recovers_a_perturbed_pose(body):
@@ -156,7 +209,7 @@ def test_refinement_recovers_a_perturbed_pose(body):
     intr = Intrinsics.from_fov(45.0, 640, 480)
     points = sample_surface(body, 150, rng)
     theta = body.random_angles(rng, scale=0.3)
-    rot = geometry.to_matrix(upright_orientations(np.array([0.8]), np.array([0.15])))[0]
+    rot = geometry.to_matrix(upright_orientations(np.array([0.8]), camera_pitch(0.15)))[0]
     pos = np.array([0.1, 0.2, 4.0])
     qpos = body.qpos(theta, base_pos=np.zeros(3), base_quat=np.array([1.0, 0, 0, 0]))
     X = forward_points(body, qpos, points.body, points.local, frame="base") @ rot.T + pos

@@ -5,7 +5,7 @@ import pytest
 
 from harness import geometry
 from harness.body import forward_points, point_jacobians, point_velocities, sample_surface
-from harness.engine.particle_filter import upright_orientations
+from harness.engine.particle_filter import camera_pitch, upright_orientations
 from harness.engine.transform import state_point_distributions, to_image
 from harness.pinhole import Intrinsics, project
 
@@ -88,7 +88,7 @@ def _h_term(body, theta, points, dist):
 def test_image_distributions_match_monte_carlo(monte_carlo):
     body, points, theta, dist, pos, vel = monte_carlo
     intr = Intrinsics.from_fov(45.0, 640, 480)
-    quat = upright_orientations(np.array([0.7]), np.array([0.2]))
+    quat = upright_orientations(np.array([0.7]), camera_pitch(0.2))
     rot = geometry.to_matrix(quat)
     trans = np.array([[0.2, 0.1, 4.0]])
     img = to_image(intr, rot, trans, dist)
@@ -107,7 +107,7 @@ def test_image_distributions_match_monte_carlo(monte_carlo):
 def test_moving_camera_changes_flow_by_ego_motion(monte_carlo):
     body, points, theta, dist, pos, vel = monte_carlo
     intr = Intrinsics.from_fov(45.0, 640, 480)
-    rot = geometry.to_matrix(upright_orientations(np.array([0.0]), np.array([0.0])))
+    rot = geometry.to_matrix(upright_orientations(np.array([0.0]), camera_pitch(0.0)))
     trans = np.array([[0.0, 0.0, 4.0]])
     still = to_image(intr, rot, trans, dist)
     # A camera translating along its own x axis at 1 m/s makes a point straight ahead drift by -fx/Z px/s.

@@ -18,42 +18,7 @@ from harness.evaluation.journal import ResultsError
 from harness.evaluation.journal import read as read_journal
 from harness.evaluation.scenario import PROCEDURAL_CLASSES, parse_scenario
 
-TINY = {"name": "tiny", "seed": 5, "repeats": 2, "database": {"classes": ["walk", "run", "kick"]},
-        "test": {"demos_per_class": 1}, "methods": ["full", "no_database"],
-        "sweep": {"markers.count": [10, 30], "occluders.amount": [0.0, 0.3]}}
-
-
-def fake_run(run: runner.RunSpec) -> list[dict]:
-    """A deterministic stand-in for the pipeline: numbers drawn from the run's seed, shaped like real rows."""
-    rng = run.rng()
-    classes = list(run.config.classes)
-    rows = []
-    for method in run.config.methods:
-        skill = 0.9 - run.config.occluders.amount - (0.2 if method == "no_database" else 0.0)
-        right = rng.random() < skill
-        pred = run.test_class if right else classes[(classes.index(run.test_class) + 1) % len(classes)]
-        rows.append({"method": method, "class_true": run.test_class, "class_pred": pred, "correct": int(right),
-                     "frame_accuracy": float(rng.uniform(0.3, 1.0)),
-                     "time_to_correct_s": float(rng.uniform(0, 2)) if right else float("nan"),
-                     "angle_rms_deg": float(rng.gamma(4, 2)), "mpjpe_cam_mm": float(rng.gamma(9, 8)),
-                     "mpjpe_abs_mm": float(rng.gamma(9, 20)), "base_pos_err_m": float(rng.gamma(3, 0.05)),
-                     "base_depth_err_m": float(rng.gamma(2, 0.05)), "base_rot_err_deg": float(rng.gamma(3, 3)),
-                     "reproj_px": float(rng.gamma(3, 1)), "ms_per_frame": 12.5,
-                     "self_occlusion": 0.2, "obstacle_occlusion": run.config.occluders.amount * 0.8,
-                     "n_frames": 60, "mean_flows": float(run.config.markers.count) * 0.6})
-    return rows
-
-
-def slow_fake_run(run):
-    time.sleep(0.05)
-    return fake_run(run)
-
-
-def failing_run(run):
-    if run.test_class == "run" and run.repeat == 1:
-        from harness.errors import HarnessError
-        raise HarnessError("kick exploded")
-    return fake_run(run)
+from fakes import TINY, failing_run, fake_run, slow_fake_run  # noqa: E402
 
 
 @pytest.fixture
@@ -83,7 +48,7 @@ def test_plan_is_the_cartesian_product_with_distinct_deterministic_seeds(tiny, t
 
 def test_rows_carry_identity_and_are_sorted(tiny, tmp_path):
     table = runner.run_scenario(tiny, tmp_path / "tiny", fake_run, progress=False)
-    assert len(table) == 24 * 2
+    assert len(table) == 24 * 3
     for col in ("run_key", "scenario", "condition", "markers.count", "occluders.amount", "repeat",
                 "test_class", "test_demo", "seed", "method", "correct"):
         assert col in table
@@ -145,8 +110,8 @@ import sys
 sys.path.insert(0, {tests!r})
 from harness.evaluation.runner import run_scenario
 from harness.evaluation.scenario import parse_scenario
-import test_runner
-run_scenario(parse_scenario(test_runner.TINY), {out!r}, test_runner.slow_fake_run, progress=False)
+import fakes
+run_scenario(parse_scenario(fakes.TINY), {out!r}, fakes.slow_fake_run, progress=False)
 """
 
 

@@ -27,12 +27,12 @@ def _error(raw) -> str:
      "s.yaml: database.classes[3]: unknown class 'wlak' (valid: walk, run,"),
     ({"name": "x", "markers": {"count": "many"}}, "s.yaml: markers.count: Input should be a valid integer"),
     ({"name": "x", "camera": {"azimuth": "left"}}, "s.yaml: camera.azimuth: Input should be a valid number"),
-    ({"name": "x", "sweep": {"markers.count": [10, -3]}}, "s.yaml: sweep['markers.count'][1]: Input should be greater"),
+    ({"name": "x", "sweep": {"markers.count": [10, -3]}}, "s.yaml: sweep['markers.count'][1]: at least one marker is needed (got -3)"),
     ({"name": "x", "sweep": {"markers.cont": [10]}}, "s.yaml: sweep['markers.cont']: unknown key (valid: "),
     ({"name": "x", "sweep": {"markers.count": 10}}, "s.yaml: sweep['markers.count']: must be a list"),
     ({"name": "x", "engine": {"init_distance": [5, 2]}}, "s.yaml: engine.init_distance: must be [near, far]"),
     ({"name": "x", "test": {"split": "all"}}, "s.yaml: test.split: 'all' does not fit database.source"),
-    ({"name": "x", "methods": ["full", "best"]}, "s.yaml: methods[1]: Input should be 'full'"),
+    ({"name": "x", "methods": ["full", "best"]}, "s.yaml: methods[1]: unknown method 'best' (valid: full, gt_base"),
     ({"seed": 3}, "s.yaml: name: required key is missing"),
 ])
 def test_errors_name_the_key_and_what_was_expected(raw, expected):
@@ -108,6 +108,56 @@ def test_capture_dir_missing_is_named(monkeypatch):
         resolve_capture(s)
 
 
-def test_procedural_classes_match_the_performer():
-    performer = pytest.importorskip("harness.motion.performer", reason="the performer is not on this branch")
-    assert tuple(performer.CLASSES) == PROCEDURAL_CLASSES
+def test_procedural_classes_are_the_performers():
+    from harness.motion import performer
+
+    assert PROCEDURAL_CLASSES is performer.CLASSES          # one list, not a copy that could drift
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_documented_schema_is_the_generated_one():
+    from harness.evaluation.scenario import schema_markdown, sweepable_keys
+
+    doc = (ROOT / "docs" / "evaluation.md").read_text()
+    block = doc.split("<!-- schema:begin -->\n")[1].split("<!-- schema:end -->")[0]
+    assert block == schema_markdown()
+    for key in sweepable_keys():
+        assert f"`{key}`" in doc, key
+
+
+def test_engine_reaches_every_tracker_setting_by_name():
+    import dataclasses
+
+    from harness.engine import TrackerConfig
+    from harness.evaluation.scenario import EngineConfig, tracker_config
+
+    names = [f.name for f in dataclasses.fields(TrackerConfig)]
+    assert list(EngineConfig.model_fields) == names
+    s = parse_scenario({"name": "e", "engine": {"guide_fraction": 0.2, "init_elevation": [0, 20]},
+                        "sweep": {"engine.n_eff_filter": [2.0, 6.0]}})
+    assert tracker_config(s) == TrackerConfig(guide_fraction=0.2, init_elevation=(0.0, 20.0))
+    assert [c.config.engine.n_eff_filter for c in conditions(s)] == [2.0, 6.0]
+
+
+def test_scenario_sections_are_the_scene_specs():
+    from harness.evaluation.scenario import scene_spec
+    from harness.scene.spec import CameraSpec, ObservationSpec, OccluderSpec, SubjectSpec
+    import numpy as np
+
+    s = parse_scenario({"name": "d", "markers": {"seed": 4}, "occluders": {"seed": 1}})
+    spec = scene_spec(s, np.random.default_rng(0))
+    assert spec.camera == CameraSpec() and spec.observation == ObservationSpec()
+    assert spec.occluders == OccluderSpec(seed=1) and spec.subject == SubjectSpec()
+    assert spec.camera.look_at_height == 0.9 and "follow" in str(CameraSpec.__dataclass_fields__["motion"].metadata)
+    assert parse_scenario({"name": "f", "camera": {"motion": "follow"}}).camera.motion == "follow"
+
+
+def test_the_code_version_is_part_of_the_hash(monkeypatch):
+    import harness.evaluation.scenario as sc
+
+    s = parse_scenario({"name": "h"})
+    before = scenario_hash(s)
+    monkeypatch.setattr(sc, "code_version", lambda: "0.1.0+other")
+    assert scenario_hash(s) != before

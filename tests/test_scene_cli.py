@@ -1,7 +1,7 @@
 """``harness scene-video`` on a saved motion (the --class path needs the performer, not tested here)."""
 
 import cv2
-from scene_motions import walk_motion
+from harness.motion.simple_walk import walk_motion
 
 from harness.cli import main
 

@@ -5,14 +5,14 @@ import warnings
 import mujoco
 import numpy as np
 import pytest
-from scene_motions import walk_motion
+from harness.motion.simple_walk import walk_motion
 
 from harness.body import forward_points
 from harness.errors import HarnessError
 from harness.observation import Observation
 from harness.pinhole import project
 from harness.scene.camera import camera_trajectory, camera_velocity
-from harness.scene.occluders import Box, preset_names, segments_blocked
+from harness.scene.occluders import Obstacle, preset_names, segments_blocked
 from harness.scene.simulate import GroundTruth, SceneWarning, build_setup, simulate
 from harness.scene.spec import (OCCLUDER_PRESETS, CameraSpec, MarkerSpec, ObservationSpec, OccluderSpec,
                                 SceneError, SceneSpec)
@@ -65,7 +65,7 @@ def test_orbit_camera_velocity_is_the_orbit_rate(walk):
 
 
 def test_segment_box_slab_test_against_dense_sampling(rng):
-    box = Box(np.array([1.0, 0.5, 0.4]), np.array([0.2, 0.3, 0.4]), 0.6)
+    box = Obstacle(np.array([1.0, 0.5, 0.4]), np.array([0.2, 0.3, 0.4]), 0.6)
     a = rng.uniform(-0.5, 2.5, (400, 3))
     b = rng.uniform(-0.5, 2.5, (400, 3))
     s = np.linspace(0.0, 0.999, 4000)

@@ -1,8 +1,5 @@
 """Tables and statistics: bootstrap against a closed form, paired tests by hand, identical inputs -> identical files."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -13,8 +10,7 @@ from harness.evaluation.report import make_report
 from harness.evaluation.runner import run_scenario
 from harness.evaluation.scenario import parse_scenario
 
-sys.path.insert(0, str(Path(__file__).parent))
-from test_runner import TINY, fake_run  # noqa: E402
+from fakes import TINY, fake_run  # noqa: E402
 
 
 def test_bootstrap_interval_matches_the_normal_interval_of_a_known_sample():
@@ -63,18 +59,20 @@ def test_summary_cells_against_numpy(rows):
     assert cell["ci_lo"].item() < cell["mean"].item() < cell["ci_hi"].item()
     ttc = summ[(summ["metric"] == "time_to_correct_s")]
     assert (ttc["n"] <= 6).all()                     # NaN (never correct) is left out of the mean
-    assert list(dict.fromkeys(summ["method"])) == ["full", "no_database"]
+    assert list(dict.fromkeys(summ["method"])) == ["full", "gt_base", "no_database"]
 
 
 def test_confusion_and_per_class_count_by_hand(rows):
     conf = tables.confusion(rows, ["walk", "run", "kick"])
-    g = rows[(rows["condition"] == rows["condition"].iloc[0]) & (rows["method"] == "no_database")]
-    mat = conf[(rows["condition"].iloc[0], "no_database")]
+    assert not [k for k in conf if k[1] == "no_database"]          # no recognition: no matrix, no class rows
+    assert "no_database" not in set(tables.per_class(rows)["method"])
+    g = rows[(rows["condition"] == rows["condition"].iloc[0]) & (rows["method"] == "full")]
+    mat = conf[(rows["condition"].iloc[0], "full")]
     for t in ("walk", "run", "kick"):
         for p in ("walk", "run", "kick"):
             assert mat.loc[t, p] == int(((g["class_true"] == t) & (g["class_pred"] == p)).sum())
     pc = tables.per_class(rows)
-    r = pc[(pc["condition"] == g["condition"].iloc[0]) & (pc["method"] == "no_database") & (pc["class_true"] == "walk")]
+    r = pc[(pc["condition"] == g["condition"].iloc[0]) & (pc["method"] == "full") & (pc["class_true"] == "walk")]
     assert r["accuracy"].item() == pytest.approx(g.loc[g["class_true"] == "walk", "correct"].mean())
 
 
@@ -83,10 +81,11 @@ def test_paired_tests_pair_the_same_runs(rows):
     cond = rows["condition"].iloc[0]
     mc = pt[(pt["condition"] == cond) & (pt["test"] == "McNemar (exact)")].iloc[0]
     f = rows[(rows["condition"] == cond) & (rows["method"] == "full")].set_index("run_key")["correct"]
-    n = rows[(rows["condition"] == cond) & (rows["method"] == "no_database")].set_index("run_key")["correct"]
+    n = rows[(rows["condition"] == cond) & (rows["method"] == "gt_base")].set_index("run_key")["correct"]
     a_only, b_only = int(((f == 1) & (n == 0)).sum()), int(((f == 0) & (n == 1)).sum())
-    assert mc["effect"] == f"full only right {a_only}, no_database only right {b_only}"
+    assert mc["effect"] == f"full only right {a_only}, gt_base only right {b_only}"
     assert mc["n_pairs"] == 6
+    assert not ((pt["comparison"] == "full vs no_database") & (pt["test"] == "McNemar (exact)")).any()
 
 
 def test_same_scenario_twice_gives_identical_tables_and_report(tmp_path):
@@ -97,7 +96,7 @@ def test_same_scenario_twice_gives_identical_tables_and_report(tmp_path):
         rows = run_scenario(scenario, out, fake_run, progress=False)
         rows["ms_per_frame"] = 10.0 if d == "a" else 99.0     # timing differs between machines and runs
         make_report(scenario, out, rows, plots=False)
-        report = (out / "report.md").read_text().split("## Timing")[0]
+        report = (out / "report.md").read_text().split("## Timing")[0].replace(str(out), "DIR")
         texts.append([report] + [(out / f"{n}.csv").read_text() for n in
                                  ("headline", "per_class", "confusion", "paired_tests")])
     assert texts[0] == texts[1]
@@ -114,3 +113,34 @@ def test_pooled_metrics_are_means_over_runs(rows):
     assert pooled["no_database/mpjpe_cam_mm"] == pytest.approx(rows.loc[rows["method"] == "no_database",
                                                                         "mpjpe_cam_mm"].mean())
     assert "full/n_frames" not in pooled
+
+
+def test_headline_says_given_and_dash_and_rounds_to_three_figures(rows):
+    summ = tables.summary(rows, ["markers.count", "occluders.amount"], n_boot=200)
+    head = tables.headline(summ, ["markers.count", "occluders.amount"])
+    nd = head[head["method"] == "no_database"].iloc[0]
+    gb = head[head["method"] == "gt_base"].iloc[0]
+    full = head[head["method"] == "full"].iloc[0]
+    assert nd["correct"] == "–" and nd["log_p_true"] == "–" and nd["base_pos_err_m"] == "given"
+    assert gb["heading_err_deg"] == "given" and gb["correct"] != "–"
+    assert full["base_pos_err_m"] not in ("given", "–") and nd["runs"] == 6
+    assert tables._fmt(0.0004331) == "0.000433" and tables._fmt(1.189e-15) == "1.19e-15" and tables._fmt(103.4) == "103"
+
+
+def test_accuracy_over_time_is_the_mean_of_the_stored_curves(rows):
+    curve = tables.accuracy_over_time(rows)
+    assert set(curve["method"]) == {"full", "gt_base"}
+    cond = rows["condition"].iloc[0]
+    g = rows[(rows["condition"] == cond) & (rows["method"] == "full")]
+    by_hand = np.mean([c[4] for c in g["accuracy_curve"]])
+    cell = curve[(curve["condition"] == cond) & (curve["method"] == "full")].iloc[4]
+    assert cell["accuracy"] == pytest.approx(by_hand) and cell["fraction"] == pytest.approx(4 / 9, abs=1e-3)
+
+
+def test_worst_runs_are_wrong_first_then_least_sure(rows):
+    worst = tables.worst_runs(rows, "full", 3)
+    full = rows[rows["method"] == "full"]
+    wrong = full[full["correct"] == 0].sort_values("log_p_true")
+    right = full[full["correct"] == 1].sort_values("log_p_true")
+    assert 0 < len(wrong) < 3
+    assert list(worst["run_key"]) == (list(wrong["run_key"]) + list(right["run_key"]))[:3]

@@ -17,8 +17,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from harness.body.model import BodyModel
+from harness.body.model import NQ, BodyModel
 from harness.body.surface import BOX, CAPSULE, CYLINDER, SPHERE
+from harness.errors import BodyError
 
 FRAMES = ("world", "base")
 _IDENTITY_BASE = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
@@ -28,14 +29,14 @@ def _as_batch(qpos: np.ndarray) -> tuple[np.ndarray, bool]:
     qpos = np.asarray(qpos, dtype=float)
     if qpos.ndim == 1:
         return qpos[None], True
-    if qpos.ndim != 2 or qpos.shape[1] != 57:
-        raise ValueError(f"qpos must have shape (57,) or (T, 57), got {qpos.shape}")
+    if qpos.ndim != 2 or qpos.shape[1] != NQ:
+        raise BodyError(f"qpos must have shape ({NQ},) or (T, {NQ}), got {qpos.shape}")
     return qpos, False
 
 
 def _check_frame(frame: str) -> None:
     if frame not in FRAMES:
-        raise ValueError(f"frame must be one of {FRAMES}, got {frame!r}")
+        raise BodyError(f"frame must be one of {FRAMES}, got {frame!r}")
 
 
 def _pose(body: BodyModel, q: np.ndarray, frame: str, with_com: bool) -> None:

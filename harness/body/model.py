@@ -13,7 +13,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from harness.errors import ModelError
+from harness.errors import ModelError, UnknownNameError
 
 DEFAULT_MODEL_PATH = Path(__file__).resolve().parents[2] / "models" / "humanoid56.xml"
 N_ANGLES = 50
@@ -36,12 +36,15 @@ def load_mjmodel(path: str | Path | None = None) -> mujoco.MjModel:
 class BodyModel:
     """A compiled humanoid with one free joint at the root and 50 hinges, and its index maps.
 
-    Holds one scratch ``MjData`` for kinematics; not safe to share between threads.
+    Holds one scratch ``MjData`` for kinematics; not safe to share between threads. ``segment_scale``
+    ``(nbody,)``: the length factor of each segment against the model file (ones for the nominal body; see
+    ``harness.body.scaling`` and ``scaled``).
     """
 
-    def __init__(self, model: mujoco.MjModel, path: Path | None = None):
+    def __init__(self, model: mujoco.MjModel, path: Path | None = None, segment_scale: np.ndarray | None = None):
         self.model = model
         self.path = path
+        self.segment_scale = np.ones(model.nbody) if segment_scale is None else np.asarray(segment_scale, float)
         self.data = mujoco.MjData(model)
         self._check_structure()
         hinge_ids = np.arange(1, model.njnt)
@@ -64,6 +67,32 @@ class BodyModel:
     def load(cls, path: str | Path | None = None) -> "BodyModel":
         path = Path(path) if path is not None else DEFAULT_MODEL_PATH
         return cls(load_mjmodel(path), path)
+
+    @property
+    def nominal(self) -> bool:
+        """True for the model file's own proportions (no segment scaled)."""
+        return bool(np.all(self.segment_scale == 1.0))
+
+    def mjspec(self) -> mujoco.MjSpec:
+        """A fresh ``MjSpec`` of this body (the model file, with this body's segment scaling applied), for
+        building scenes around it."""
+        from harness.body.scaling import scaled_mjspec
+
+        path = self.path or DEFAULT_MODEL_PATH
+        if self.nominal:
+            return mujoco.MjSpec.from_file(str(path))
+        return scaled_mjspec(path, self.body_names, self.segment_scale)
+
+    def scaled(self, factors: np.ndarray) -> "BodyModel":
+        """This model file with segment ``b`` scaled by ``factors[b]`` ``(nbody,)`` (relative to the file)."""
+        from harness.body.scaling import scaled_mjspec
+
+        factors = np.asarray(factors, dtype=float)
+        if factors.shape != (self.model.nbody,) or not np.all(np.isfinite(factors) & (factors > 0)):
+            raise ModelError(f"segment factors must be {self.model.nbody} positive numbers, got shape "
+                             f"{factors.shape}")
+        spec = scaled_mjspec(self.path or DEFAULT_MODEL_PATH, self.body_names, factors)
+        return BodyModel(spec.compile(), self.path, factors)
 
     def _check_structure(self) -> None:
         m = self.model
@@ -90,13 +119,13 @@ class BodyModel:
         try:
             return self.joint_names.index(joint_name)
         except ValueError:
-            raise KeyError(f"unknown joint {joint_name!r}; joints are named <body>_<axis>, "
+            raise UnknownNameError(f"unknown joint {joint_name!r}; joints are named <body>_<axis>, "
                            f"for example {self.joint_names[0]!r}") from None
 
     def body_id(self, body_name: str) -> int:
         bid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, body_name)
         if bid < 0:
-            raise KeyError(f"unknown body {body_name!r}; bodies: {', '.join(self.body_names[1:])}")
+            raise UnknownNameError(f"unknown body {body_name!r}; bodies: {', '.join(self.body_names[1:])}")
         return int(bid)
 
     def angles(self, qpos: np.ndarray) -> np.ndarray:

@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 
 from harness.body.model import BodyModel
+from harness.errors import BodyError
 
 SPHERE, CAPSULE, BOX, CYLINDER = (int(mujoco.mjtGeom.mjGEOM_SPHERE), int(mujoco.mjtGeom.mjGEOM_CAPSULE),
                                   int(mujoco.mjtGeom.mjGEOM_BOX), int(mujoco.mjtGeom.mjGEOM_CYLINDER))
@@ -56,7 +57,7 @@ def geom_area(geom_type: int, size: np.ndarray) -> float:
     if geom_type == CYLINDER:
         r, h = size[0], size[1]
         return 4.0 * np.pi * r * h + 2.0 * np.pi * r**2
-    raise ValueError(f"geom type {geom_type} is not supported for surface sampling "
+    raise BodyError(f"geom type {geom_type} is not supported for surface sampling "
                      f"(supported: {', '.join(SUPPORTED.values())})")
 
 
@@ -76,7 +77,7 @@ def geom_sdf(geom_type: int, size: np.ndarray, p: np.ndarray) -> np.ndarray:
         r, h = size[0], size[1]
         q = np.stack([np.linalg.norm(p[:, :2], axis=1) - r, np.abs(p[:, 2]) - h], axis=1)
         return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
-    raise ValueError(f"geom type {geom_type} is not supported (supported: {', '.join(SUPPORTED.values())})")
+    raise BodyError(f"geom type {geom_type} is not supported (supported: {', '.join(SUPPORTED.values())})")
 
 
 def _unit_vectors(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -124,7 +125,7 @@ def _sample_geom(geom_type: int, size: np.ndarray, n: int, rng: np.random.Genera
         nrm = np.zeros((n, 3))
         nrm[np.arange(n), axis] = sgn
         return pos, nrm
-    raise ValueError(f"geom type {geom_type} is not supported (supported: {', '.join(SUPPORTED.values())})")
+    raise BodyError(f"geom type {geom_type} is not supported (supported: {', '.join(SUPPORTED.values())})")
 
 
 def _inside_other_geoms(body: BodyModel, geom: np.ndarray, body_id: np.ndarray, local: np.ndarray,
@@ -145,13 +146,13 @@ def sample_surface(body: BodyModel, n: int, rng: np.random.Generator, exclude_in
                    interior_tol: float = 1e-6) -> SurfacePoints:
     """Draw ``n`` points uniformly by area over the humanoid's geoms (deterministic for a given ``rng``)."""
     if n < 0:
-        raise ValueError(f"number of surface points must be >= 0, got {n}")
+        raise BodyError(f"number of surface points must be >= 0, got {n}")
     m = body.model
     geoms = body.body_geoms
     for g in geoms:
         if int(m.geom_type[g]) not in SUPPORTED:
             name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, int(g))
-            raise ValueError(f"geom {name!r} has a type that cannot be sampled "
+            raise BodyError(f"geom {name!r} has a type that cannot be sampled "
                              f"(supported: {', '.join(SUPPORTED.values())})")
     if n == 0:
         return SurfacePoints(np.empty(0, int), np.empty(0, int), np.empty((0, 3)), np.empty((0, 3)))

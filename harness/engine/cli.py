@@ -10,10 +10,9 @@ import argparse
 
 import numpy as np
 
-from harness.cli import command
+from harness.commands import command
 from harness.errors import EngineError
 from harness.io import save_npz_atomic
-
 
 
 def _train_args(p: argparse.ArgumentParser) -> None:
@@ -37,12 +36,9 @@ def train_database(args: argparse.Namespace) -> int:
 
         motions = load_capture_set(args.capture_dir, fps=args.fps, classes=args.classes)
     else:
-        from harness.motion.performer import CLASSES, demonstrations
+        from harness.motion.performer import CLASSES, training_set
 
-        motions = []
-        for i, c in enumerate(args.classes or CLASSES):
-            rng = np.random.default_rng([args.seed, i])
-            motions += [demonstrations(c, 1, rng, fps=args.fps, subject=s)[0] for s in range(args.demos)]
+        motions = training_set(args.classes or CLASSES, args.demos, args.seed, args.fps)
     db = MotionDatabase(n_states=args.states, cyclic=CYCLIC_PRIMITIVES).fit(motions)
     db.save(args.out)
     print(f"{args.out}: {len(db.classes_)} primitives x {args.states} states from {len(motions)} demonstrations")

@@ -11,6 +11,7 @@ states ordered in time and makes EM deterministic.
 from __future__ import annotations
 
 import logging
+import zipfile
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
@@ -166,7 +167,7 @@ class MotionDatabase:
         try:
             with np.load(path, allow_pickle=False) as z:
                 if str(z["format"]) != _FORMAT:
-                    raise EngineError(f"{path}: not a motion database ({z['format']})")
+                    raise EngineError(f"{path}: not a motion database (format mismatch, expected {_FORMAT!r})")
                 db = cls(n_states=z["means"].shape[1], cyclic=[str(c) for c in z["cyclic"]],
                          n_iter=int(z["n_iter"]))
                 db.classes_ = z["classes"].astype(str)
@@ -175,10 +176,16 @@ class MotionDatabase:
                 db.fps_ = float(z["fps"])
         except FileNotFoundError:
             raise EngineError(f"{path}: no such database file") from None
-        except (KeyError, ValueError, OSError) as exc:
-            raise EngineError(f"{path}: not a motion database ({exc})") from None
-        db.validate()
-        return db
+        except KeyError as exc:
+            raise EngineError(f"{path}: not a motion database (no array {exc.args[0]!r})") from None
+        except (ValueError, TypeError, IndexError, OSError, EOFError, zipfile.BadZipFile) as exc:
+            # Empty, truncated or foreign files: the kind of failure, never the file's bytes.
+            raise EngineError(f"{path}: not a motion database (empty, truncated or malformed: "
+                              f"{type(exc).__name__})") from None
+        try:
+            return db.validate()
+        except EngineError as exc:
+            raise EngineError(f"{path}: {exc}") from None
 
     def validate(self) -> "MotionDatabase":
         """Check that the learned arrays agree in shape and are finite; raises EngineError naming the array."""

@@ -29,7 +29,7 @@ from harness.pinhole import Intrinsics, project, projection_jacobian
 
 if TYPE_CHECKING:
     from harness.engine.model import EngineModel
-    from harness.engine.tracker import TrackerConfig
+    from harness.engine.config import TrackerConfig
 
 
 def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows: np.ndarray, resp: np.ndarray,

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from harness.cli import command
+from harness.commands import command
 
 DEFAULT_RESULTS = "results"
 DEFAULT_CI = "scenarios/ci.yaml"
@@ -49,12 +49,13 @@ def _check_jobs(args) -> None:
 
 
 def _run(scenario, args, limit=None):
+    from harness.evaluation.pipeline import run_one
     from harness.evaluation.report import make_report
     from harness.evaluation.runner import run_scenario
 
     _check_jobs(args)
     out = Path(args.results) / scenario.name
-    rows = run_scenario(scenario, out, jobs=args.jobs, scheduler=args.scheduler, limit=limit,
+    rows = run_scenario(scenario, out, run_one, jobs=args.jobs, scheduler=args.scheduler, limit=limit,
                         cache_dir=Path(args.results) / "cache", fresh=args.fresh, progress=not args.quiet)
     report = make_report(scenario, out, rows)
     print(f"{scenario.name}: {rows['run_key'].nunique() if len(rows) else 0} runs -> {report}")

@@ -4,7 +4,7 @@ Each line is one JSON object ``{"key": run key, "hash": scenario hash, "rows": [
 written with a single ``write`` and then ``fsync``, so a run is either fully recorded or not at all. A process
 killed mid-write leaves a last line without its newline: ``read`` detects it, truncates it away, and that run is
 simply done again. Lines stored under another scenario hash are stale (the scenario changed since they were
-computed); ``open_journal`` refuses them unless told to start fresh.
+computed); ``Journal`` refuses them unless told to start fresh (``fresh=True``).
 
 NaN is written as the JSON extension ``NaN`` (Python's ``json`` reads it back exactly); floats round-trip
 bit-identically through ``repr``.

@@ -3,7 +3,8 @@
 Conventions: a configuration is ``(T, 57)`` (base position metres, base quaternion w x y z, 50 hinge angles
 in radians). "Camera-frame" base poses are the base (pelvis) position and orientation in the OpenCV camera
 frame (x right, y down, z forward), which is what the engine estimates. Joint centres are the origins of the
-humanoid's bodies (``harness.body.body_origins``).
+humanoid's bodies (``harness.body.body_origins``). The MPJPE functions take the estimate's body and, as
+``true_body``, the observed subject's (default: the same body): a scaled subject's true joints are its own.
 """
 
 from __future__ import annotations
@@ -11,8 +12,13 @@ from __future__ import annotations
 import numpy as np
 
 from harness.body import BodyModel, SurfacePoints, body_origins, forward_points
+from harness.errors import HarnessError
 from harness.geometry import angle_between, conjugate, from_matrix, multiply
 from harness.pinhole import Intrinsics, project
+
+
+class MetricError(HarnessError, ValueError):
+    """Inputs a metric cannot score (wrong shapes, a label that is not a class)."""
 
 
 def recognition(posteriors: np.ndarray, classes: list[str] | tuple[str, ...], true_label: str,
@@ -26,9 +32,9 @@ def recognition(posteriors: np.ndarray, classes: list[str] | tuple[str, ...], tr
     """
     post = np.asarray(posteriors, dtype=float)
     if post.ndim != 2 or post.shape[1] != len(classes) or len(post) == 0:
-        raise ValueError(f"posteriors must be (T, {len(classes)}) with T >= 1, got {post.shape}")
+        raise MetricError(f"posteriors must be (T, {len(classes)}) with T >= 1, got {post.shape}")
     if true_label not in classes:
-        raise ValueError(f"true label {true_label!r} is not one of the classes {list(classes)}")
+        raise MetricError(f"true label {true_label!r} is not one of the classes {list(classes)}")
     hit = np.argmax(post, axis=1) == list(classes).index(true_label)
     wrong = np.flatnonzero(~hit)
     if hit[-1]:
@@ -65,11 +71,12 @@ def log_p_true(posteriors: np.ndarray, classes: list[str] | tuple[str, ...], tru
     continuous score beside the 0/1 accuracy (0 = certain and right)."""
     post = np.asarray(posteriors, dtype=float)
     if true_label not in classes:
-        raise ValueError(f"true label {true_label!r} is not one of the classes {list(classes)}")
+        raise MetricError(f"true label {true_label!r} is not one of the classes {list(classes)}")
     return float(np.log(max(post[-1, list(classes).index(true_label)], LOG_P_FLOOR)))
 
 
-def mpjpe_pose_mm(body: BodyModel, est_qpos: np.ndarray, true_qpos: np.ndarray) -> float:
+def mpjpe_pose_mm(body: BodyModel, est_qpos: np.ndarray, true_qpos: np.ndarray,
+                  true_body: BodyModel | None = None) -> float:
     """Pose-only mean per-joint position error, millimetres.
 
     Joint centres in the base (pelvis) frame: the base pose is factored out, so only the angles matter and a
@@ -77,7 +84,7 @@ def mpjpe_pose_mm(body: BodyModel, est_qpos: np.ndarray, true_qpos: np.ndarray) 
     out of the mean.
     """
     est = body_origins(body, est_qpos, frame="base")[..., 1:, :]
-    true = body_origins(body, true_qpos, frame="base")[..., 1:, :]
+    true = body_origins(true_body or body, true_qpos, frame="base")[..., 1:, :]
     return float(1000.0 * np.mean(np.linalg.norm(est - true, axis=-1)))
 
 
@@ -88,16 +95,17 @@ def camera_qpos(body: BodyModel, base_pos_cam: np.ndarray, base_quat_cam: np.nda
     return body.qpos(np.asarray(angles, dtype=float), base_pos=base_pos_cam, base_quat=base_quat_cam)
 
 
-def mpjpe_absolute_mm(body: BodyModel, est_qpos_cam: np.ndarray, true_qpos_cam: np.ndarray) -> float:
+def mpjpe_absolute_mm(body: BodyModel, est_qpos_cam: np.ndarray, true_qpos_cam: np.ndarray,
+                      true_body: BodyModel | None = None) -> float:
     """Absolute mean per-joint position error in the camera frame, millimetres, every joint centre (root
     included); both configurations carry their camera-frame base pose (see ``camera_qpos``)."""
     est = body_origins(body, est_qpos_cam, frame="world")
-    true = body_origins(body, true_qpos_cam, frame="world")
+    true = body_origins(true_body or body, true_qpos_cam, frame="world")
     return float(1000.0 * np.mean(np.linalg.norm(est - true, axis=-1)))
 
 
 def mpjpe_camera_mm(body: BodyModel, est_qpos_cam: np.ndarray, true_qpos_cam: np.ndarray,
-                    joints: np.ndarray | None = None) -> float:
+                    joints: np.ndarray | None = None, true_body: BodyModel | None = None) -> float:
     """Human3.6M protocol 1, millimetres: joint centres in the camera frame with each skeleton's root
     (pelvis) subtracted, so the base orientation counts and the base translation does not.
 
@@ -105,7 +113,7 @@ def mpjpe_camera_mm(body: BodyModel, est_qpos_cam: np.ndarray, true_qpos_cam: np
     mean runs over the 17 joints, the root included at zero error, as Human3.6M's evaluation code does.
     """
     est = body_origins(body, est_qpos_cam, frame="world")
-    true = body_origins(body, true_qpos_cam, frame="world")
+    true = body_origins(true_body or body, true_qpos_cam, frame="world")
     est, true = est - est[..., :1, :], true - true[..., :1, :]
     sel = np.arange(1, est.shape[-2]) if joints is None else np.asarray(joints)
     return float(1000.0 * np.mean(np.linalg.norm(est[..., sel, :] - true[..., sel, :], axis=-1)))
@@ -127,12 +135,12 @@ def procrustes_align(est: np.ndarray, true: np.ndarray) -> np.ndarray:
 
 
 def pa_mpjpe_mm(body: BodyModel, est_qpos_cam: np.ndarray, true_qpos_cam: np.ndarray,
-                joints: np.ndarray | None = None) -> float:
+                joints: np.ndarray | None = None, true_body: BodyModel | None = None) -> float:
     """Human3.6M protocol 2, millimetres: mean joint error after a per-frame similarity Procrustes alignment
     of the estimated joints onto the true ones, over ``joints`` (default: all 25 joint centres, root
     included; ``h36m_joints`` for the 17)."""
     est = body_origins(body, est_qpos_cam, frame="world")
-    true = body_origins(body, true_qpos_cam, frame="world")
+    true = body_origins(true_body or body, true_qpos_cam, frame="world")
     if joints is not None:
         est, true = est[..., joints, :], true[..., joints, :]
     est, true = est.reshape(-1, *est.shape[-2:]), true.reshape(-1, *true.shape[-2:])

@@ -64,10 +64,15 @@ def _mean_ci(x: np.ndarray, seed: int) -> tuple[float, float, float]:
 
 
 def _colour(method: str) -> str:
-    """One colour per method in every panel and plot (matplotlib's default cycle, in METHODS order)."""
-    order = ("full", "gt_base", "no_database", "joint_space")
-    cycle = ("C0", "C1", "C2", "C3")
-    return cycle[order.index(method)] if method in order else "C7"
+    """One colour per method in every panel and plot: matplotlib's default cycle in registration order
+    (``harness.evaluation.methods``), skipping C7 (grey), which marks an unregistered name."""
+    from harness.evaluation.methods import method_names
+
+    order = method_names()
+    if method not in order:
+        return "C7"
+    k = order.index(method) % 9
+    return f"C{k if k < 7 else k + 1}"
 
 
 def plot_against(rows: pd.DataFrame, key: str, path: Path, seed: int = 0) -> bool:
@@ -140,12 +145,66 @@ def plot_confusion(matrix: pd.DataFrame, title: str, path: Path) -> None:
     plt.close(fig)
 
 
+def plot_class_heatmap(per_class: pd.DataFrame, classes: list[str], path: Path) -> bool:
+    """Final accuracy per true class (rows) and method x condition (columns) as a heat map, values written in."""
+    if not len(per_class):
+        return False
+    plt = _pyplot()
+    cols = list(dict.fromkeys(zip(per_class["method"], per_class["condition"])))
+    acc = np.full((len(classes), len(cols)), np.nan)
+    for r in per_class.itertuples(index=False):
+        if r.class_true in classes:
+            acc[classes.index(r.class_true), cols.index((r.method, r.condition))] = r.accuracy
+    fig, ax = plt.subplots(figsize=(max(3.6, 1.6 + 0.75 * len(cols)), 1.0 + 0.36 * len(classes)))
+    ax.imshow(np.nan_to_num(acc, nan=0.0), cmap="RdYlGn", vmin=0.0, vmax=1.0, aspect="auto")
+    for (i, j), a in np.ndenumerate(acc):
+        ax.text(j, i, "–" if np.isnan(a) else f"{a:.2f}", ha="center", va="center", fontsize=7)
+    one_condition = len({c for _, c in cols}) == 1
+    labels = [m if one_condition else f"{m}\n{c}" for m, c in cols]
+    ax.set_xticks(range(len(cols)), labels, rotation=60, ha="right", fontsize=7)
+    ax.set_yticks(range(len(classes)), classes, fontsize=8)
+    ax.set_title("final recognition accuracy per class", fontsize=9)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+    return True
+
+
+def plot_accuracy_over_time(curve: pd.DataFrame, path: Path) -> bool:
+    """Accuracy against time since the start of the motion (fraction of the clip), one line per method (and
+    line style per condition when there are several)."""
+    if not len(curve):
+        return False
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 3.6))
+    conds = list(dict.fromkeys(curve["condition"]))
+    styles = ("-", "--", ":", "-.")
+    for (method, cond), g in curve.groupby(["method", "condition"], sort=False):
+        k = conds.index(cond)
+        label = method if len(conds) == 1 else f"{method}, {cond}"
+        ax.plot(g["fraction"], g["accuracy"], marker="o", ms=3, color=_colour(method), ls=styles[k % len(styles)],
+                label=label)
+    ax.set_xlabel("time since the start of the motion (fraction of the clip)")
+    ax.set_ylabel("accuracy of the current argmax")
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+    return True
+
+
 def write_plots(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str]) -> list[str]:
     """Every plot the scenario calls for, under ``out_dir/plots``; returns their paths relative to ``out_dir``."""
-    from harness.evaluation.tables import confusion
+    from harness.evaluation.tables import accuracy_over_time, confusion, per_class
 
     out_dir = Path(out_dir)
     made = []
+    if plot_accuracy_over_time(accuracy_over_time(rows), out_dir / "plots/accuracy_over_time.png"):
+        made.append("plots/accuracy_over_time.png")
+    if plot_class_heatmap(per_class(rows), classes, out_dir / "plots/class_accuracy.png"):
+        made.append("plots/class_accuracy.png")
     for key in swept:
         name = f"plots/vs_{key.replace('.', '_')}.png"
         if plot_against(rows, key, out_dir / name):

@@ -27,15 +27,26 @@ def classes_of(scenario: Scenario, rows: pd.DataFrame) -> list[str]:
     return listed + seen
 
 
+def _section_plots(figures: list[str], names: tuple[str, ...]) -> list[str]:
+    return [f"![{Path(f).stem}]({f})\n" for f in figures if Path(f).stem in names]
+
+
 def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame | None = None,
                 plots: bool = True) -> Path:
-    """Write every table, plot and ``report.md`` of a scenario's results directory; return the report path."""
+    """Write every table, plot and ``report.md`` of a scenario's results directory; return the report path.
+
+    The report opens with the headline table; then recognition against time, per class (heat map), the three
+    worst runs of ``full`` with the command that renders each, paired tests, confusion matrices of the methods
+    that recognise, plots against the swept keys, the scenario, and timing last."""
     results_dir = Path(results_dir)
     digest = scenario_hash(scenario)
     rows = load_rows(results_dir, digest) if rows is None else rows
     swept, classes = swept_keys(scenario), classes_of(scenario, rows)
     if not len(rows):
-        text = f"# {scenario.name}\n\nNo finished runs under scenario hash `{digest}`.\n"
+        others = load_rows(results_dir)
+        hint = (f" The journal holds {others['run_key'].nunique()} runs under other hashes (another version of the "
+                f"scenario or of the code): run `harness evaluate` with --fresh.") if len(others) else ""
+        text = f"# {scenario.name}\n\nNo finished runs under scenario hash `{digest}`.{hint}\n"
         path = results_dir / "report.md"
         write_text_atomic(path, text)
         return path
@@ -44,26 +55,48 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
     n_runs = rows["run_key"].nunique()
     parts = [
         f"# Evaluation: {scenario.name}\n",
+        "## Headline\n",
         f"{n_runs} runs ({rows['condition'].nunique()} conditions x {scenario.repeats} repeats x test motions), "
-        f"methods: {', '.join(dict.fromkeys(rows['method']))}. Scenario hash `{digest}`. Values are means with "
-        f"95% bootstrap intervals over runs; `correct` is the final recognition accuracy (0-1).\n",
-        "## Headline\n", markdown(tables["headline"]),
-        "## Recognition per class\n", markdown(tables["per_class"]),
-        "## Paired tests (same runs)\n",
-        "Exact McNemar test on final recognition and Wilcoxon signed-rank test on root-relative MPJPE, "
-        "`full` against each other method within each condition.\n",
-        markdown(tables["paired_tests"]),
-        "## Confusion matrices\n",
+        f"methods: {', '.join(dict.fromkeys(rows['method']))}. Means with 95% bootstrap intervals over runs, three "
+        f"significant figures; `correct` is the final recognition accuracy (0-1); `given`: the method is handed "
+        f"that quantity; `–`: the method does not produce it. Scenario hash `{digest}`.\n",
+        markdown(tables["headline"]),
+        "## Recognition against time since the start of the motion\n",
+        "Fraction of runs whose current most probable class is the true one, at ten evenly spaced instants of "
+        "each clip (0 = first frame, 1 = last).\n",
+        *_section_plots(figures, ("accuracy_over_time",)),
+        "## Recognition per class\n",
+        *_section_plots(figures, ("class_accuracy",)),
+        "(numbers in `per_class.csv`)\n",
     ]
-    for (cond, method), mat in tables["_confusion_matrices"].items():
-        parts += [f"**{method}**, condition `{cond}` (rows: true, columns: predicted)\n",
-                  markdown(mat.reset_index().rename(columns={"index": "true"}))]
-    if figures:
-        parts.append("## Plots\n")
-        parts += [f"![{Path(f).stem}]({f})\n" for f in figures]
+    worst = tables["worst_runs"]
+    if len(worst):
+        parts += ["## The three worst runs of `full`\n",
+                  "Wrong before right, then the lowest log posterior of the true class. Render one (camera image "
+                  "with flows, true and estimated body, class posterior over time):\n",
+                  markdown(worst), "```bash\n" + "".join(
+                      f"python -m harness run-video {results_dir} {k} --out {_video_name(k)}\n"
+                      for k in worst["run_key"]) + "```\n"]
+    parts += [
+        "## Paired tests (same runs)\n",
+        "Exact McNemar test on final recognition and Wilcoxon signed-rank test on camera-frame MPJPE "
+        "(protocol 1), `full` against each other method within each condition.\n",
+        markdown(tables["paired_tests"]),
+        "## Confusion matrices (methods that recognise, all conditions)\n",
+        *_section_plots(figures, tuple(Path(f).stem for f in figures if Path(f).stem.startswith("confusion_"))),
+        "(counts per condition in `confusion.csv`)\n",
+    ]
+    swept_plots = tuple(Path(f).stem for f in figures if Path(f).stem.startswith("vs_")
+                        or Path(f).stem == "accuracy_vs_measured_occlusion")
+    if swept_plots:
+        parts += ["## Against the swept keys\n", *_section_plots(figures, swept_plots)]
     parts += ["## Scenario\n", "```yaml\n" + yaml.safe_dump(scenario.model_dump(mode="json"), sort_keys=False)
               + "```\n",
               "## Timing (reported, not part of identity checks)\n", markdown(tables["timing"])]
     path = results_dir / "report.md"
     write_text_atomic(path, "\n".join(parts))
     return path
+
+
+def _video_name(run_key: str) -> str:
+    return "run_" + run_key.replace("/", "_") + ".mp4"

@@ -14,7 +14,6 @@ on how many times the sweep was interrupted and resumed.
 from __future__ import annotations
 
 import hashlib
-import importlib
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -28,8 +27,9 @@ import pandas as pd
 from harness.errors import HarnessError
 from harness.evaluation.journal import Journal
 from harness.evaluation.journal import read as read_journal
-from harness.evaluation.scenario import Scenario, conditions, read_manifest, scenario_hash
+from harness.evaluation.scenario import MAX_RUNS, Scenario, conditions, scenario_hash
 from harness.io import write_text_atomic
+from harness.version import code_version
 
 RunFunction = Callable[["RunSpec"], list[dict]]
 IDENTITY_COLUMNS = ("run_key", "scenario", "condition", "repeat", "test_class", "test_demo", "seed")
@@ -46,6 +46,8 @@ class RunSpec:
     swept: the condition's ``(dotted key, value)`` pairs. test_demo: the performer's demo index (procedural:
     held out, ``train_demos + i``) or the demo's position among its class's manifest rows (capture).
     seed: the run's seed (non-negative int below 2**63). cache_dir: where the pipeline caches databases.
+    code: the code version the run was planned with (``harness.version``; a worker running other code
+    refuses the run).
     """
 
     config: Scenario
@@ -57,6 +59,7 @@ class RunSpec:
     test_demo: int
     seed: int
     cache_dir: str
+    code: str = ""
 
     @property
     def key(self) -> str:
@@ -97,44 +100,38 @@ def motions_under_test(config: Scenario) -> list[tuple[str, int]]:
     db = config.database
     if db.source == "procedural" and config.test.split == "heldout":
         return [(c, db.train_demos + i) for c in config.classes for i in range(config.test.demos_per_class)]
-    if config.test.split == "captures" and db.capture_dir is not None:
-        rows = read_manifest(Path(db.capture_dir) / db.manifest)
-        present = [c for c in config.classes if any(r["class"] == c for r in rows)]
-        return [(c, i) for c in present for i in range(sum(r["class"] == c for r in rows))]
-    if db.capture_dir is None or db.classes is None:
+    from harness.motion.captures import demos_by_class, read_manifest
+
+    if db.capture_dir is None or (config.test.split != "captures" and db.classes is None):
         raise RunError(f"{config.name}: capture scenario not resolved (call scenario.resolve_capture first)")
     rows = read_manifest(Path(db.capture_dir) / db.manifest)
+    by_class = demos_by_class(rows)
+    if config.test.split == "captures":
+        return [(c, i) for c in config.classes if c in by_class for i in range(len(by_class[c]))]
     out = []
     for c in db.classes:
-        mine = [r for r in rows if r["class"] == c]
-        for i, row in enumerate(mine):
+        subjects = {rows[k].subject for k in by_class.get(c, [])}
+        for i, k in enumerate(by_class.get(c, [])):
             # Cross-subject: a demo is testable only if another subject performed its class.
-            if config.test.split == "cross_subject" and all(r["subject"] == row["subject"] for r in mine):
+            if config.test.split == "cross_subject" and subjects == {rows[k].subject}:
                 continue
             out.append((c, i))
     return out
 
 
 def plan(scenario: Scenario, cache_dir: str | Path) -> list[RunSpec]:
-    """Every run of a scenario, sorted by run key."""
+    """Every run of a scenario, sorted by run key (at most ``MAX_RUNS``)."""
     runs = []
+    code = code_version()
     for cond in conditions(scenario):
+        motions = motions_under_test(cond.config)
+        if len(runs) + scenario.repeats * len(motions) > MAX_RUNS:
+            raise RunError(f"{scenario.name}: the plan has more than {MAX_RUNS} runs: reduce repeats or the sweep")
         for rep in range(scenario.repeats):
-            for cls, demo in motions_under_test(cond.config):
+            for cls, demo in motions:
                 runs.append(RunSpec(cond.config, cond.index, cond.label, cond.values, rep, cls, demo,
-                                    derive_seed(scenario.seed, rep, cls, demo), str(cache_dir)))
+                                    derive_seed(scenario.seed, rep, cls, demo), str(cache_dir), code))
     return sorted(runs, key=lambda r: r.key)
-
-
-def default_run_function() -> RunFunction:
-    """The lead's pipeline, imported only when a real evaluation runs."""
-    try:
-        return importlib.import_module("harness.evaluation.pipeline").run_one
-    except ModuleNotFoundError as exc:
-        if exc.name != "harness.evaluation.pipeline":
-            raise
-        raise RunError("harness.evaluation.pipeline is not installed in this checkout: there is no run "
-                       "function to evaluate with") from None
 
 
 def _checked_rows(run: RunSpec, rows: Any) -> list[dict]:
@@ -176,12 +173,13 @@ def _execute_dask(todo: list[RunSpec], run_fn: RunFunction, address: str) -> Ite
             yield futures[fut], _call(lambda _: fut.result(), futures[fut])
 
 
-def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunction | None = None, jobs: int = 1,
+def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunction, jobs: int = 1,
                  scheduler: str | None = None, limit: int | None = None, cache_dir: str | Path | None = None,
                  fresh: bool = False, progress: bool = True) -> pd.DataFrame:
     """Run every run of ``scenario`` not yet in ``results_dir/runs.jsonl``; return all rows sorted by run key.
 
-    results_dir: this scenario's directory (``results/<name>``). limit: only the first N runs of the plan
+    run_fn: ``run_fn(RunSpec) -> rows`` (``harness.evaluation.pipeline.run_one`` for a real evaluation; it must
+    be importable by worker processes). results_dir: this scenario's directory (``results/<name>``). limit: only the first N runs of the plan
     (a smoke test; later calls without it complete the rest). cache_dir: database cache (default
     ``results_dir/../cache``, shared between scenarios). fresh: set aside runs of an older scenario version.
     Also writes ``scenario.json`` (resolved scenario and hash) and the sorted ``runs.csv``.
@@ -192,7 +190,6 @@ def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunctio
     runs = plan(scenario, cache_dir)
     if limit is not None:
         runs = runs[:max(0, int(limit))]
-    run_fn = run_fn or default_run_function()   # before touching results_dir: a missing pipeline writes nothing
     with Journal(results_dir, digest, fresh=fresh) as journal:
         write_text_atomic(results_dir / "scenario.json", _scenario_json(scenario, digest))
         todo = [r for r in runs if r.key not in journal]
@@ -214,11 +211,15 @@ def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunctio
 
 
 def _call(fn: Callable[[RunSpec], Any], run: RunSpec) -> Any:
-    """``fn(run)``, with a ``HarnessError`` re-raised naming the run (finished runs stay in the journal)."""
+    """``fn(run)``, with a ``HarnessError`` re-raised as ``RunError`` naming the run (finished runs stay in the
+    journal); any other exception is a bug and keeps its traceback, with a note naming the run."""
     try:
         return fn(run)
     except HarnessError as exc:
         raise RunError(f"run {run.key} failed: {exc} (finished runs are kept; re-run to resume)") from exc
+    except Exception as exc:
+        exc.add_note(f"in run {run.key} (seed {run.seed}); finished runs are kept")
+        raise
 
 
 def _scenario_json(scenario: Scenario, digest: str) -> str:

@@ -1,41 +1,53 @@
 """Evaluation scenarios: the YAML schema, its validation, and the sweep grid.
 
-A scenario fixes everything one evaluation needs (database, test split, markers, camera, occluders,
-observation noise, engine settings, methods, repeats, seed) plus ``sweep``: a mapping of dotted keys to lists of
-values whose Cartesian product gives the *conditions*. Every section forbids unknown keys, and every error
+A scenario fixes everything one evaluation needs (database, test split, subject, markers, camera, occluders,
+observation noise, engine settings, methods, repeats, seed) plus ``sweep``: a mapping of dotted keys to lists
+of values whose Cartesian product gives the *conditions*. Every section forbids unknown keys, and every error
 names the key path and what was expected, for example::
 
     default.yaml: camera.distnce: unknown key
     default.yaml: sweep['markers.count']: empty list (give at least one value)
     default.yaml: database.classes[3]: unknown class 'wlak' (valid: bow, jump, ...)
 
-The schema with every default and unit is documented in ``docs/evaluation.md``.
+One schema: the ``markers``, ``camera``, ``occluders``, ``observation`` and ``subject`` sections are generated
+from the scene's own spec types (``harness.scene.spec``: the same fields, defaults and checks; a seed or the
+azimuth may be left to each run), and ``engine`` from ``harness.engine.TrackerConfig`` (every field by name;
+a value is checked by building the ``TrackerConfig``). Everything is checked at load, before any run: also
+where the camera would stand (below the floor, inside the standing subject or inside an obstacle given by
+hand) and the size of the plan. The schema table in ``docs/evaluation.md`` is ``schema_markdown()``.
 """
 
 from __future__ import annotations
 
-import csv
+import dataclasses
 import hashlib
 import itertools
 import json
+import math
 import os
 import re
+import typing
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, field_validator, model_validator
 
-from harness.errors import HarnessError
+from harness.engine import TrackerConfig
+from harness.errors import EngineError, HarnessError
+from harness.evaluation.methods import method_names
+from harness.motion.performer import CLASSES as PROCEDURAL_CLASSES
+from harness.scene.spec import (CameraSpec, MarkerSpec, ObservationSpec, OccluderGeom, OccluderSpec, SceneError,
+                                SceneSpec, SubjectSpec)
+from harness.version import code_version
 
-# The procedural performer's primitives (harness.motion.performer.CLASSES); repeated here so that a scenario
-# can be checked without importing the simulator side. tests/test_scenario.py checks the two agree when the
-# performer is present.
-PROCEDURAL_CLASSES: tuple[str, ...] = ("walk", "run", "jump", "squat", "kick", "punch", "wave", "bow", "throw",
-                                       "jumping_jack")
-METHODS: tuple[str, ...] = ("full", "gt_base", "no_database", "joint_space")
 MOCAP_ENV = "HARNESS_MOCAP_DIR"
+MAX_RUNS = 100_000          # a plan beyond this is refused at load (at seconds per run it would take weeks)
+MAX_SCENARIO_BYTES = 1_000_000
+RANDOM = "random"
 
 
 class ScenarioError(HarnessError):
@@ -43,7 +55,7 @@ class ScenarioError(HarnessError):
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class DatabaseConfig(_Section):
@@ -53,10 +65,10 @@ class DatabaseConfig(_Section):
     capture_dir: str | None = None          # capture only; else --mocap-dir or $HARNESS_MOCAP_DIR
     manifest: str = "MANIFEST.csv"          # capture only; relative to capture_dir
     classes: tuple[str, ...] | None = None  # default: all procedural classes / the manifest's classes
-    train_demos: int = Field(8, ge=1)       # demonstrations per class (procedural)
-    states: int = Field(20, ge=2)           # HMM states per primitive
+    train_demos: int = Field(8, ge=1, le=1000)   # demonstrations per class (procedural)
+    states: int = Field(20, ge=2, le=500)   # HMM states per primitive
     seed: int = Field(0, ge=0)              # training seed (demo generation and HMM initialisation)
-    fps: float = Field(30.0, gt=0)          # frames per second of training and test motions
+    fps: float = Field(30.0, gt=0, le=1000)  # frames per second of training and test motions
 
     @model_validator(mode="after")
     def _check_classes(self):
@@ -76,70 +88,144 @@ class SplitConfig(_Section):
     """Which motions are tested: held-out procedural demos, a split of the capture set, or (``captures``) every
     capture demonstration against a procedural database (sim-to-real)."""
 
-    demos_per_class: int = Field(2, ge=1)  # procedural: held-out demos per class
+    demos_per_class: int = Field(2, ge=1, le=1000)  # procedural: held-out demos per class
     split: Literal["heldout", "captures", "leave_one_out", "cross_subject", "all"] = "heldout"
 
 
-class MarkersConfig(_Section):
-    count: int = Field(100, ge=1)          # random surface sites on the body
-    seed: int | None = None                # None: drawn from the run's seed (new placement every run)
+# --- sections generated from the scene's spec types and the engine's TrackerConfig ------------------------
+
+# Fields a scenario may leave to each run: None (a seed drawn from the run's seed) or "random" (an azimuth
+# drawn uniformly in [0, 360) per run). For validation the spec is built with a stand-in value.
+_PER_RUN: dict[tuple[type, str], tuple[Any, Any, Any]] = {
+    (MarkerSpec, "seed"): (int | None, None, 0),
+    (OccluderSpec, "seed"): (int | None, None, 0),
+    (SubjectSpec, "seed"): (int | None, None, 0),
+    (CameraSpec, "azimuth"): (float | Literal["random"], 0.0, 0.0),
+}
+_SECTION_OF: dict[type, type[BaseModel]] = {}
 
 
-class CameraConfig(_Section):
-    distance: float = Field(4.0, gt=0)                  # metres from the subject's start position
-    azimuth: float | Literal["random"] = 0.0            # degrees about world z; 0 looks at the subject's front
-    elevation: float = Field(10.0, ge=-89.0, le=89.0)   # degrees above the horizon
-    fovy: float = Field(45.0, gt=0, lt=180)             # vertical field of view, degrees
-    width: int = Field(640, ge=16)                      # pixels
-    height: int = Field(480, ge=16)                     # pixels
-    look_at_height: float = 0.9                         # metres above the floor
-    motion: Literal["static", "orbit"] = "static"
-    orbit_rate: float = 0.0                             # degrees per second (motion: orbit)
+def _field_default(f: dataclasses.Field) -> Any:
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    raise TypeError(f"{f.name}: a schema field needs a default")
 
 
-class OccludersConfig(_Section):
-    preset: str = Field("none", min_length=1)           # a preset name of harness.scene (checked there)
-    amount: float = Field(0.0, ge=0.0, le=1.0)          # fraction of the subject the preset aims to hide
-    seed: int | None = None                             # None: drawn from the run's seed
+def _spec_key(exc: SceneError) -> str:
+    """The field name of a spec error (``camera.distance`` -> ``distance``)."""
+    return (exc.key or "").split(".")[-1]
 
 
-class ObservationConfig(_Section):
-    mode: Literal["geometric", "rendered"] = "geometric"
-    noise_px: float = Field(1.0, ge=0.0)                # std of pixel noise on positions, pixels
-    dropout: float = Field(0.0, ge=0.0, lt=1.0)         # probability a visible flow is dropped
-    outliers: float = Field(0.0, ge=0.0, lt=1.0)        # fraction of flows replaced by random outliers
-    camera_prior: Literal["none", "gravity", "floor"] = "none"   # what the camera knows of its own pose
+def _section_from_spec(spec_cls: type, name: str) -> type[BaseModel]:
+    """A pydantic section with the spec's fields and defaults whose validation builds the spec itself, so that
+    the scene's own checks (bounds, finite numbers, names) are the scenario's."""
+    hints = typing.get_type_hints(spec_cls)
+    fields: dict[str, Any] = {}
+    for f in dataclasses.fields(spec_cls):
+        if (spec_cls, f.name) in _PER_RUN:
+            ann, default, _ = _PER_RUN[(spec_cls, f.name)]
+            fields[f.name] = (ann, default)
+            continue
+        ann = hints[f.name]
+        if typing.get_origin(ann) is tuple and typing.get_args(ann)[0] in _SECTION_OF:   # nested spec types
+            ann = tuple[_SECTION_OF[typing.get_args(ann)[0]], ...]
+        fields[f.name] = (ann, _field_default(f))
+
+    def check(self):
+        try:
+            to_spec(self, spec_cls)
+        except SceneError as exc:
+            raise ValueError(f"{_spec_key(exc)}: {exc.why} (got {exc.value!r})") from None
+        return self
+
+    model = create_model(name, __base__=_Section, __doc__=spec_cls.__doc__, __module__=__name__,
+                         __validators__={"_spec_checks": model_validator(mode="after")(check)}, **fields)
+    model.spec_type = spec_cls
+    _SECTION_OF[spec_cls] = model
+    return model
 
 
-class EngineConfig(_Section):
-    particles: int = Field(200, ge=1)
-    model_points: int = Field(150, ge=1)
-    model_seed: int = Field(7, ge=0)                    # the engine's own surface sample (not the markers')
-    init_distance: tuple[float, float] = (2.0, 8.0)     # metres, prior range of the subject's distance
+def to_spec(section: BaseModel, spec_cls: type | None = None, **values: Any):
+    """The spec a generated section describes; ``values`` fill the per-run fields (seeds, azimuth), which
+    otherwise take their stand-ins."""
+    spec_cls = spec_cls or section.spec_type
+    kwargs = {}
+    for f in dataclasses.fields(spec_cls):
+        v = values.get(f.name, getattr(section, f.name))
+        if (spec_cls, f.name) in _PER_RUN and (v is None or v == RANDOM):
+            v = _PER_RUN[(spec_cls, f.name)][2]
+        if isinstance(v, tuple) and v and isinstance(v[0], BaseModel):
+            v = tuple(to_spec(item) for item in v)
+        kwargs[f.name] = v
+    return spec_cls(**kwargs)
 
-    @field_validator("init_distance")
-    @classmethod
-    def _ordered(cls, v):
-        if not 0 < v[0] < v[1]:
-            raise ValueError(f"must be [near, far] with 0 < near < far metres, got {list(v)}")
-        return v
+
+OccluderGeomConfig = _section_from_spec(OccluderGeom, "OccluderGeomConfig")
+MarkersConfig = _section_from_spec(MarkerSpec, "MarkersConfig")
+CameraConfig = _section_from_spec(CameraSpec, "CameraConfig")
+OccludersConfig = _section_from_spec(OccluderSpec, "OccludersConfig")
+ObservationConfig = _section_from_spec(ObservationSpec, "ObservationConfig")
+SubjectConfig = _section_from_spec(SubjectSpec, "SubjectConfig")
+
+
+def _engine_section() -> type[BaseModel]:
+    """Every ``TrackerConfig`` field by name, with its default; validated by building the TrackerConfig."""
+    hints = typing.get_type_hints(TrackerConfig)
+    fields = {f.name: (hints[f.name], _field_default(f)) for f in dataclasses.fields(TrackerConfig)}
+
+    def check(self):
+        values = self.model_dump()
+        try:
+            TrackerConfig(**values)
+        except EngineError as exc:
+            # Name the key: the first field that fails on its own (else the message alone, for a rule
+            # between fields).
+            for name, value in values.items():
+                if value == fields[name][1]:
+                    continue
+                try:
+                    TrackerConfig(**{name: value})
+                except EngineError:
+                    text = str(exc).removeprefix(f"engine setting {name} ")
+                    raise ValueError(f"{name}: {text}") from None
+            raise ValueError(str(exc)) from None
+        return self
+
+    return create_model("EngineConfig", __base__=_Section, __doc__=TrackerConfig.__doc__, __module__=__name__,
+                        __validators__={"_tracker_checks": model_validator(mode="after")(check)}, **fields)
+
+
+EngineConfig = _engine_section()
 
 
 class Scenario(_Section):
     """A validated scenario; ``sweep`` maps dotted keys to the values each condition takes."""
 
-    name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$")     # also the results directory name
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$", max_length=100)     # also the results directory name
     seed: int = Field(0, ge=0)
-    repeats: int = Field(1, ge=1)
+    repeats: int = Field(1, ge=1, le=MAX_RUNS)
     database: DatabaseConfig = DatabaseConfig()
     test: SplitConfig = SplitConfig()
+    subject: SubjectConfig = SubjectConfig()
     markers: MarkersConfig = MarkersConfig()
     camera: CameraConfig = CameraConfig()
     occluders: OccludersConfig = OccludersConfig()
     observation: ObservationConfig = ObservationConfig()
     engine: EngineConfig = EngineConfig()
-    methods: tuple[Literal["full", "gt_base", "no_database", "joint_space"], ...] = METHODS
+    methods: tuple[str, ...] = Field(default_factory=method_names)
     sweep: dict[str, list[Any]] = Field(default_factory=dict)
+
+    @field_validator("methods")
+    @classmethod
+    def _known_methods(cls, v):
+        for i, m in enumerate(v):
+            if m not in method_names():
+                raise ValueError(f"[{i}]: unknown method {m!r} (valid: {', '.join(method_names())})")
+        if len(set(v)) != len(v):
+            raise ValueError(f"listed twice: {sorted({m for m in v if v.count(m) > 1})}")
+        return v
 
     @model_validator(mode="after")
     def _check_split(self):
@@ -173,13 +259,34 @@ class Condition:
         return ",".join(f"{k}={v}" for k, v in self.values) or "base"
 
 
+def scene_spec(config: Scenario, rng: np.random.Generator) -> SceneSpec:
+    """The scene of one run: per-run values (``random`` azimuth, seeds left to the run) drawn from ``rng`` in a
+    fixed order (azimuth, marker seed, occluder seed, subject seed), each only when the scenario leaves it."""
+    cam, mk, occ, subj = config.camera, config.markers, config.occluders, config.subject
+    azimuth = float(rng.uniform(0.0, 360.0)) if cam.azimuth == RANDOM else float(cam.azimuth)
+    marker_seed = mk.seed if mk.seed is not None else int(rng.integers(2**31))
+    occ_seed = occ.seed if occ.seed is not None else int(rng.integers(2**31))
+    subject_seed = 0
+    if subj.limb_scale > 0:
+        subject_seed = subj.seed if subj.seed is not None else int(rng.integers(2**31))
+    # A preset at amount 0 is no obstacle (a sweep over the amount starts there).
+    preset = occ.preset if occ.amount > 0 else "none"
+    return SceneSpec(to_spec(mk, seed=marker_seed), to_spec(cam, azimuth=azimuth),
+                     to_spec(occ, preset=preset, seed=occ_seed), to_spec(config.observation),
+                     to_spec(subj, seed=subject_seed))
+
+
+def tracker_config(config: Scenario) -> TrackerConfig:
+    return TrackerConfig(**config.engine.model_dump())
+
+
+# --- errors ------------------------------------------------------------------------------------------------
+
 def _format_loc(loc: tuple) -> str:
     out = ""
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
-        elif part in ("function-after", "function-before") or str(part).startswith("function-"):
-            continue
         else:
             out += ("." if out else "") + str(part)
     return out
@@ -195,11 +302,16 @@ def _message(err: dict) -> str:
         msg = msg[len("Value error, "):]
     got = err.get("input")
     if kind not in ("value_error",) and not isinstance(got, (dict, list)):
-        msg += f" (got {got!r})"
+        msg += f" (got {_short(got)})"
     return msg
 
 
-_UNION_TAG = re.compile(r"^(int|float|str|bool|none|literal\[.*\]|tuple\[.*\]|list\[.*\])$")
+def _short(value: Any, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+_UNION_TAG = re.compile(r"^(int|float|str|bool|none|literal\[.*\]|tuple\[.*\]|list\[.*\]|.*Section)$")
 
 
 def _strip(loc: tuple) -> tuple:
@@ -215,13 +327,14 @@ def _first_error(exc: ValidationError) -> tuple[str, str]:
     if len(same) > 1:   # a union: every alternative failed; say what each expected
         got = same[0].get("input")
         expected = " or ".join(dict.fromkeys(_message(e).split(" (got ")[0] for e in same))
-        return path, f"{expected} (got {got!r})"
+        return path, f"{expected} (got {_short(got)})"
     msg = _message(errors[0])
-    # model_validator messages already start with their own key path ("classes[3]: ...").
+    # Validator messages may start with their own key path ("classes[3]: ...", "[1]: ...").
     if errors[0]["type"] == "value_error" and ":" in msg:
         head = msg.split(":", 1)[0]
-        if " " not in head:
-            return (f"{path}.{head}" if path else head), msg.split(":", 1)[1].strip()
+        if head and " " not in head:
+            joined = head if not path else (f"{path}{head}" if head.startswith("[") else f"{path}.{head}")
+            return joined, msg.split(":", 1)[1].strip()
     return path, msg
 
 
@@ -235,6 +348,8 @@ def _validate(raw: dict, where: str) -> Scenario:
         raise ScenarioError(f"{where}: {path}: {msg}{extra}" if path else f"{where}: {msg}{extra}") from None
 
 
+# --- the sweep grid ----------------------------------------------------------------------------------------
+
 def _set_dotted(raw: dict, key: str, value: Any) -> dict:
     out = json.loads(json.dumps(raw))
     node = out
@@ -247,7 +362,7 @@ def _set_dotted(raw: dict, key: str, value: Any) -> dict:
     return out
 
 
-def _sweepable_keys() -> list[str]:
+def sweepable_keys() -> list[str]:
     keys = []
     for section, field in Scenario.model_fields.items():
         ann = field.annotation
@@ -259,7 +374,7 @@ def _sweepable_keys() -> list[str]:
 
 
 def _check_sweep(raw: dict, scenario: Scenario, where: str) -> None:
-    valid = _sweepable_keys()
+    valid = sweepable_keys()
     for key, values in scenario.sweep.items():
         if key not in valid:
             raise ScenarioError(f"{where}: sweep[{key!r}]: unknown key (valid: {', '.join(valid)})")
@@ -272,7 +387,39 @@ def _check_sweep(raw: dict, scenario: Scenario, where: str) -> None:
                 _, msg = _first_error(exc)
                 raise ScenarioError(f"{where}: sweep[{key!r}][{i}]: {msg}") from None
         if len({json.dumps(v, sort_keys=True) for v in values}) != len(values):
-            raise ScenarioError(f"{where}: sweep[{key!r}]: a value is listed twice ({values})")
+            raise ScenarioError(f"{where}: sweep[{key!r}]: a value is listed twice ({_short(values)})")
+
+
+def _check_size(raw: dict, scenario: Scenario, where: str) -> None:
+    """Refuse a plan of more than MAX_RUNS runs before building it (a huge sweep or repeat count would hang)."""
+    n_conditions = math.prod(len(v) for v in scenario.sweep.values())
+    repeats = max([scenario.repeats] + list(scenario.sweep.get("repeats", [])))
+    per_condition = 1
+    if scenario.database.source == "procedural" and scenario.test.split == "heldout":
+        demos = max([scenario.test.demos_per_class] + list(scenario.sweep.get("test.demos_per_class", [])))
+        per_condition = len(scenario.classes) * demos
+    n = n_conditions * repeats * per_condition
+    if n > MAX_RUNS:
+        raise ScenarioError(f"{where}: the plan has {n} runs ({n_conditions} conditions x {repeats} repeats x "
+                            f"{per_condition} test motions), more than {MAX_RUNS}: reduce repeats or the sweep")
+
+
+def _check_placement(cond: Condition, where: str) -> None:
+    """Where the camera would stand, for every azimuth it can take (decidable cases only; see
+    ``harness.scene.placement``)."""
+    from harness.scene.placement import check_camera_placement
+
+    cfg = cond.config
+    cam = cfg.camera
+    if cam.azimuth == RANDOM or (cam.motion == "orbit" and cam.orbit_rate != 0.0):
+        azimuths = np.arange(0.0, 360.0, 1.0)
+    else:
+        azimuths = np.array([float(cam.azimuth)])
+    try:
+        check_camera_placement(to_spec(cam), to_spec(cfg.occluders), to_spec(cfg.subject), azimuths)
+    except SceneError as exc:
+        label = "" if cond.label == "base" else f" (condition {cond.label})"
+        raise ScenarioError(f"{where}: {exc.key}: {exc.why}{label}") from None
 
 
 def parse_scenario(raw: Any, where: str = "<scenario>") -> Scenario:
@@ -281,12 +428,15 @@ def parse_scenario(raw: Any, where: str = "<scenario>") -> Scenario:
         raise ScenarioError(f"{where}: a scenario must be a mapping of keys to values, got {type(raw).__name__}")
     sweep = raw.get("sweep")
     if sweep is not None and not isinstance(sweep, dict):
-        raise ScenarioError(f"{where}: sweep: must map dotted keys to lists of values, got {sweep!r}")
+        raise ScenarioError(f"{where}: sweep: must map dotted keys to lists of values, got {_short(sweep)}")
     for key, values in (sweep or {}).items():
         if not isinstance(values, list):
-            raise ScenarioError(f"{where}: sweep[{key!r}]: must be a list of values, got {values!r}")
+            raise ScenarioError(f"{where}: sweep[{key!r}]: must be a list of values, got {_short(values)}")
     scenario = _validate(raw, where)
     _check_sweep(raw, scenario, where)
+    _check_size(raw, scenario, where)
+    for cond in conditions(scenario):
+        _check_placement(cond, where)
     return scenario
 
 
@@ -294,17 +444,30 @@ def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario YAML file; ``ScenarioError`` names the file and the key path."""
     path = Path(path)
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except FileNotFoundError:
         raise ScenarioError(f"{path}: no such scenario file") from None
+    except IsADirectoryError:
+        raise ScenarioError(f"{path}: is a directory, not a scenario file") from None
     except OSError as exc:
         raise ScenarioError(f"{path}: cannot read ({exc.strerror})") from None
+    if len(data) > MAX_SCENARIO_BYTES:
+        raise ScenarioError(f"{path}: {len(data)} bytes is too large for a scenario (at most {MAX_SCENARIO_BYTES})")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{path}: not a text file (byte {exc.start} is not UTF-8)") from None
+    if "\x00" in text:
+        raise ScenarioError(f"{path}: not a text file (it contains NUL bytes)")
     try:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f" line {mark.line + 1}" if mark is not None else ""
-        raise ScenarioError(f"{path}:{line} not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        raise ScenarioError(f"{path}:{line} not valid YAML ({getattr(exc, 'problem', None) or type(exc).__name__})"
+                            ) from None
+    except RecursionError:
+        raise ScenarioError(f"{path}: not valid YAML (nested too deeply)") from None
     return parse_scenario(raw if raw is not None else {}, str(path))
 
 
@@ -323,10 +486,14 @@ def conditions(scenario: Scenario) -> list[Condition]:
 
 
 def scenario_hash(scenario: Scenario) -> str:
-    """A stable hash (hex, 16 digits) of the resolved scenario; runs stored under another hash are stale."""
-    text = json.dumps(scenario.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+    """A stable hash (hex, 16 digits) of the resolved scenario and the code version
+    (``harness.version.code_version``); runs stored under another hash are stale."""
+    text = json.dumps({"scenario": scenario.model_dump(mode="json"), "code": code_version()}, sort_keys=True,
+                      separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
+
+# --- capture sets ------------------------------------------------------------------------------------------
 
 def resolve_mocap_dir(scenario: Scenario, override: str | Path | None = None) -> Path:
     """The capture directory: ``--mocap-dir`` beats ``database.capture_dir`` beats ``$HARNESS_MOCAP_DIR``."""
@@ -340,27 +507,18 @@ def resolve_mocap_dir(scenario: Scenario, override: str | Path | None = None) ->
     return path
 
 
-def read_manifest(path: Path) -> list[dict[str, str]]:
-    """Rows of a capture manifest CSV (``file, format, class, subject, ...``), in file order."""
-    with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    for i, row in enumerate(rows):
-        for key in ("file", "class", "subject"):
-            if not row.get(key):
-                raise ScenarioError(f"{path}: line {i + 2}: column {key!r} is empty or missing")
-    return rows
-
-
 def resolve_capture(scenario: Scenario, mocap_dir: str | Path | None = None) -> Scenario:
     """Fix a capture scenario's directory and classes (default: the manifest's), checking listed classes.
 
     A procedural database tested on captures (``test.split: captures``) keeps its classes; every manifest
     class must be one of them."""
+    from harness.motion.captures import read_manifest
+
     if scenario.database.source != "capture" and scenario.test.split != "captures":
         return scenario
     root = resolve_mocap_dir(scenario, mocap_dir)
     rows = read_manifest(root / scenario.database.manifest)
-    present = sorted({r["class"] for r in rows})
+    present = sorted({r.label for r in rows})
     if scenario.database.source == "procedural":
         for c in present:
             if c not in scenario.classes:
@@ -375,3 +533,64 @@ def resolve_capture(scenario: Scenario, mocap_dir: str | Path | None = None) -> 
                                 f"(valid: {', '.join(present)})")
     db = scenario.database.model_copy(update={"capture_dir": str(root), "classes": tuple(classes)})
     return scenario.model_copy(update={"database": db})
+
+
+# --- the schema as documentation -----------------------------------------------------------------------------
+
+_PER_RUN_TEXT = {(MarkerSpec, "seed"): "none: drawn per run", (OccluderSpec, "seed"): "none: drawn per run",
+                 (SubjectSpec, "seed"): "none: drawn per run", (CameraSpec, "azimuth"): "or `random`: drawn per run"}
+
+
+def _default_text(value: Any) -> str:
+    if value is None:
+        return "none"
+    if isinstance(value, tuple):
+        return "[" + ", ".join(_default_text(v) for v in value) + "]"
+    if isinstance(value, str):
+        return f"`{value}`"
+    return repr(value) if not isinstance(value, float) else f"{value:g}"
+
+
+def _field_comments(cls: type) -> dict[str, str]:
+    """The trailing ``# comment`` of each field line of a dataclass's source (the engine documents its settings
+    that way)."""
+    import inspect
+
+    try:
+        source = inspect.getsource(cls)
+    except (OSError, TypeError):
+        return {}
+    out = {}
+    for line in source.splitlines():
+        m = re.match(r"^\s+(\w+)\s*:[^#]*#\s*(.+)$", line)
+        if m:
+            out.setdefault(m.group(1), m.group(2).strip().replace("|", "/"))
+    return out
+
+
+@lru_cache(maxsize=1)
+def schema_markdown() -> str:
+    """The generated rows of the schema table for the sections that come from the spec types and the engine
+    (``| key | default | unit | values | meaning |``); ``docs/evaluation.md`` holds them verbatim (tested)."""
+    lines = ["| key | default | unit | values | meaning |", "|---|---|---|---|---|"]
+    for section, spec_cls in (("subject", SubjectSpec), ("markers", MarkerSpec), ("camera", CameraSpec),
+                              ("occluders", OccluderSpec), ("occluders.geoms[]", OccluderGeom),
+                              ("observation", ObservationSpec)):
+        for f in dataclasses.fields(spec_cls):
+            meta = f.metadata
+            values = meta.get("values", "")
+            if (spec_cls, f.name) in _PER_RUN_TEXT:
+                values += f"; {_PER_RUN_TEXT[(spec_cls, f.name)]}"
+                default = _default_text(_PER_RUN[(spec_cls, f.name)][1])
+            else:
+                default = _default_text(_field_default(f))
+            lines.append(f"| `{section}.{f.name}` | {default} | {meta.get('unit', '')} | {values} | "
+                         f"{meta.get('meaning', '')} |")
+    hints = typing.get_type_hints(TrackerConfig)
+    comments = _field_comments(TrackerConfig)
+    for f in dataclasses.fields(TrackerConfig):
+        ann = hints[f.name]
+        kind = ann.__name__ if isinstance(ann, type) else str(ann).replace("typing.", "")
+        meaning = f.metadata.get("meaning") or comments.get(f.name) or "see docs/engine.md"
+        lines.append(f"| `engine.{f.name}` | {_default_text(_field_default(f))} | | {kind} | {meaning} |")
+    return "\n".join(lines) + "\n"

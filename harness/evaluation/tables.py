@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from harness.evaluation.cache import stable_hash
+from harness.evaluation.methods import METHODS, CURVE_POINTS, method_names, produces
 from harness.evaluation.stats import N_BOOT, bootstrap_ci, mcnemar_exact, wilcoxon_paired
 from harness.io import write_text_atomic
 
@@ -26,13 +27,14 @@ RECOVERY = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", 
 SCENE = ("self_occlusion", "obstacle_occlusion", "n_frames", "mean_flows")
 TIMING = ("ms_per_frame",)
 METRICS = RECOGNITION + RECOVERY + SCENE + TIMING
-METHOD_ORDER = ("full", "gt_base", "no_database", "joint_space")
 HEADLINE = ("correct", "log_p_true", "mpjpe_cam_mm", "pa_mpjpe_mm", "mpjpe_pose_mm", "base_pos_err_m",
             "heading_err_deg", "tilt_err_deg", "angle_rms_deg", "reproj_px")
 
 
 def _method_rank(m: str) -> int:
-    return METHOD_ORDER.index(m) if m in METHOD_ORDER else len(METHOD_ORDER)
+    """Registration order of the methods (``harness.evaluation.methods``); unknown names last."""
+    order = method_names()
+    return order.index(m) if m in order else len(order)
 
 
 def _order(df: pd.DataFrame, by: list[str]) -> pd.DataFrame:
@@ -69,18 +71,25 @@ def summary(rows: pd.DataFrame, swept: list[str], n_boot: int = N_BOOT, seed: in
     return _order(pd.DataFrame(out), ["metric"]) if out else pd.DataFrame(out)
 
 
+def recognising(rows: pd.DataFrame) -> pd.DataFrame:
+    """The rows of methods that recognise (a registered method without recognition has no class rows)."""
+    return rows[[produces(m, "correct") for m in rows["method"]]] if len(rows) else rows
+
+
 def per_class(rows: pd.DataFrame) -> pd.DataFrame:
-    """Recognition per condition, method and true class: runs, accuracy, frame accuracy, time to correct (s)."""
-    g = rows.groupby(["condition", "method", "class_true"], sort=False)
+    """Recognition per condition, method and true class: runs, accuracy, frame accuracy, time to correct (s);
+    methods that recognise only."""
+    g = recognising(rows).groupby(["condition", "method", "class_true"], sort=False)
     out = g.agg(runs=("correct", "size"), accuracy=("correct", "mean"), frame_accuracy=("frame_accuracy", "mean"),
                 time_to_correct_s=("time_to_correct_s", "mean")).reset_index()
     return _order(out, ["class_true"])
 
 
 def confusion(rows: pd.DataFrame, classes: list[str]) -> dict[tuple[str, str], pd.DataFrame]:
-    """Count matrices (true class rows x predicted class columns) per (condition, method)."""
+    """Count matrices (true class rows x predicted class columns) per (condition, method); methods that
+    recognise only."""
     out = {}
-    for (cond, method), g in _order(rows, ["run_key"]).groupby(["condition", "method"], sort=False):
+    for (cond, method), g in _order(recognising(rows), ["run_key"]).groupby(["condition", "method"], sort=False):
         labels = list(classes) + sorted(set(g["class_pred"]) - set(classes))
         m = pd.crosstab(pd.Categorical(g["class_true"], labels), pd.Categorical(g["class_pred"], labels),
                         dropna=False)
@@ -133,17 +142,18 @@ def pooled_metrics(rows: pd.DataFrame) -> dict[str, float]:
 
 
 def _fmt(x) -> str:
+    """Three significant figures; ``–`` for a missing number."""
     if isinstance(x, str):
         return x
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+    if x is None or (isinstance(x, (float, np.floating)) and not math.isfinite(x)):
         return "–"
     if isinstance(x, (int, np.integer)):
         return str(int(x))
-    return f"{x:.4g}"
+    return f"{float(x):.3g}"
 
 
 def markdown(df: pd.DataFrame) -> str:
-    """A GitHub Markdown table of ``df`` with numbers at 4 significant digits."""
+    """A GitHub Markdown table of ``df`` with numbers at 3 significant figures."""
     if not len(df):
         return "_(no rows)_\n"
     cols = [str(c) for c in df.columns]
@@ -154,16 +164,23 @@ def markdown(df: pd.DataFrame) -> str:
 
 
 def headline(summ: pd.DataFrame, swept: list[str], metrics: tuple[str, ...] = HEADLINE) -> pd.DataFrame:
-    """Wide table: one row per condition and method, ``mean [ci_lo, ci_hi]`` per metric, and the run count."""
+    """Wide table: one row per condition and method, ``mean [ci_lo, ci_hi]`` per metric (3 significant
+    figures), ``given`` where the method is handed the quantity, ``–`` where it does not produce it, and the
+    run count."""
     if not len(summ):
         return summ
     rows = []
     for (cond, method), g in summ.groupby(["condition", "method"], sort=False):
         g = g.set_index("metric")
+        given = METHODS[method].given if method in METHODS else ()
         row = {"condition": cond, **{k: g.iloc[0][k] for k in swept}, "method": method,
-               "runs": int(g.loc["correct", "n"]) if "correct" in g.index else 0}
+               "runs": int(g.loc["n_frames", "n"]) if "n_frames" in g.index else 0}
         for m in metrics:
-            if m in g.index and g.loc[m, "n"] > 0:
+            if m in given:
+                row[m] = "given"
+            elif not produces(method, m):
+                row[m] = "–"
+            elif m in g.index and g.loc[m, "n"] > 0:
                 r = g.loc[m]
                 row[m] = f"{_fmt(r['mean'])} [{_fmt(r['ci_lo'])}, {_fmt(r['ci_hi'])}]"
             else:
@@ -172,15 +189,48 @@ def headline(summ: pd.DataFrame, swept: list[str], metrics: tuple[str, ...] = HE
     return pd.DataFrame(rows)
 
 
+def accuracy_over_time(rows: pd.DataFrame) -> pd.DataFrame:
+    """Recognition against time since the start of the motion: per condition, recognising method and fraction
+    of the clip (``accuracy_curve``'s instants), the fraction of runs whose argmax is the true class."""
+    if "accuracy_curve" not in rows or not len(rows):
+        return pd.DataFrame(columns=["condition", "method", "fraction", "accuracy", "runs"])
+    out = []
+    for (cond, method), g in _order(recognising(rows), ["run_key"]).groupby(["condition", "method"], sort=False):
+        curves = np.array([c for c in g["accuracy_curve"] if isinstance(c, list) and len(c) == CURVE_POINTS],
+                          dtype=float).reshape(-1, CURVE_POINTS)
+        if not len(curves):
+            continue
+        for k, frac in enumerate(np.linspace(0.0, 1.0, CURVE_POINTS)):
+            out.append({"condition": cond, "method": method, "fraction": round(float(frac), 3),
+                        "accuracy": float(curves[:, k].mean()), "runs": len(curves)})
+    return pd.DataFrame(out, columns=["condition", "method", "fraction", "accuracy", "runs"])
+
+
+def worst_runs(rows: pd.DataFrame, method: str = "full", n: int = 3) -> pd.DataFrame:
+    """The ``n`` worst runs of ``method``: wrong before right, then the lowest log posterior of the true class,
+    then the largest camera-frame MPJPE."""
+    cols = ["run_key", "condition", "class_true", "class_pred", "correct", "log_p_true", "mpjpe_cam_mm"]
+    g = rows[rows["method"] == method] if len(rows) else rows
+    if not len(g):
+        return pd.DataFrame(columns=cols)
+    key = g.assign(_c=pd.to_numeric(g["correct"], errors="coerce").fillna(0.0),
+                   _l=pd.to_numeric(g["log_p_true"], errors="coerce").fillna(-np.inf),
+                   _e=-pd.to_numeric(g["mpjpe_cam_mm"], errors="coerce").fillna(np.inf))
+    worst = key.sort_values(["_c", "_l", "_e", "run_key"], kind="stable").head(n)
+    return worst[[c for c in cols if c in worst]].reset_index(drop=True)
+
+
 def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str],
                  n_boot: int = N_BOOT, seed: int = 0) -> dict[str, pd.DataFrame]:
-    """Write ``summary``, ``headline``, ``per_class``, ``confusion`` and ``paired_tests`` as CSV and Markdown,
+    """Write ``summary``, ``headline``, ``per_class``, ``confusion``, ``paired_tests``, ``accuracy_over_time``
+    and ``worst_runs`` as CSV and Markdown,
     and ``metrics.json`` (pooled metrics), under ``out_dir``. Returns the tables by name."""
     out_dir = Path(out_dir)
     summ = summary(rows, swept, n_boot, seed)
     timing = summ[summ["metric"].isin(TIMING)] if len(summ) else summ
     tables = {"summary": summ, "headline": headline(summ, swept), "per_class": per_class(rows),
-              "paired_tests": paired_tests(rows), "timing": headline(timing, swept, TIMING)}
+              "paired_tests": paired_tests(rows), "timing": headline(timing, swept, TIMING),
+              "accuracy_over_time": accuracy_over_time(rows), "worst_runs": worst_runs(rows)}
     conf = confusion(rows, classes)
     long = [{"condition": c, "method": m, "true": t, "predicted": p, "count": int(mat.loc[t, p])}
             for (c, m), mat in conf.items() for t in mat.index for p in mat.columns]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.cli import command
+from harness.commands import command
 from harness.errors import HarnessError
 
 

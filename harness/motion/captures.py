@@ -10,13 +10,16 @@ AMC rows (which carry none) from ``fps``.
 from __future__ import annotations
 
 import csv
+import io
+import math
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import numpy as np
 
 from harness.body import BodyModel
 from harness.errors import HarnessError
+from harness.io import read_text
 from harness.motion.asf_amc import asf_forward_kinematics, joint_names, load_amc, load_asf
 from harness.motion.bvh import CMU_BVH_UNIT_M, load_bvh
 from harness.motion.motion import Motion
@@ -60,46 +63,91 @@ class CaptureRow:
         return f"{self.format}:{self.file}[{self.start}:{self.end}]"
 
 
+def _cell(value: str | None, limit: int = 40) -> str:
+    """A manifest cell for an error message, shortened."""
+    text = repr(value or "")
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _relative(value: str, where: str) -> str:
+    """A file column: a relative path that stays inside the capture directory (no absolute path, no ``..``)."""
+    path = PurePosixPath(value.replace("\\", "/"))
+    if not value or path.is_absolute() or PureWindowsPath(value).is_absolute() or ".." in path.parts:
+        raise CaptureSetError(f"{where}: {_cell(value)} must be a path relative to the capture directory, "
+                              f"without '..'")
+    return value
+
+
 def read_manifest(path: str | Path, classes: list[str] | tuple[str, ...] | None = None) -> list[CaptureRow]:
-    """Parse a manifest CSV. ``classes``: when given, a row whose class is not among them is an error."""
+    """Parse a manifest CSV (at least one row). ``classes``: when given, a row whose class is not among them is
+    an error. File columns must stay inside the capture directory."""
     path = Path(path)
     if not path.is_file():
         raise CaptureSetError(f"{path}: no such manifest file")
-    with path.open(newline="") as fh:
-        reader = csv.DictReader(fh)
-        header = reader.fieldnames or []
+    text = read_text(path, CaptureSetError, "manifest")
+    if "\x00" in text:
+        raise CaptureSetError(f"{path}: not a CSV text file (it contains NUL bytes)")
+    reader = csv.DictReader(io.StringIO(text, newline=""))
+    try:
+        header = [h.strip() for h in (reader.fieldnames or [])]
         missing = [c for c in REQUIRED_COLUMNS if c not in header]
         if missing:
-            raise CaptureSetError(f"{path}: missing columns {', '.join(missing)} (header: {', '.join(header)})")
+            raise CaptureSetError(f"{path}: not a manifest: missing columns {', '.join(missing)} "
+                                  f"(docs/captures.md)")
+        reader.fieldnames = header
         rows = []
         for raw in reader:
             line = reader.line_num
             where = lambda col: f"{path}: row {line}, column {col!r}"  # noqa: E731
+            if any(raw.get(c) is None for c in REQUIRED_COLUMNS):
+                raise CaptureSetError(f"{path}: row {line}: {len([v for v in raw.values() if v is not None])} "
+                                      f"cells, the header has {len(header)}")
             fmt = raw["format"].strip().lower()
             if fmt not in FORMATS:
-                raise CaptureSetError(f"{where('format')}: unknown format {raw['format']!r} (formats: "
+                raise CaptureSetError(f"{where('format')}: unknown format {_cell(raw['format'])} (formats: "
                                       f"{', '.join(FORMATS)})")
             values = {}
             for col, kind in (("start", int), ("end", int), ("fps", float)):
                 try:
                     values[col] = kind(raw[col])
                 except (TypeError, ValueError):
-                    raise CaptureSetError(f"{where(col)}: not a number: {raw[col]!r}") from None
+                    raise CaptureSetError(f"{where(col)}: not a number: {_cell(raw[col])}") from None
             if not 0 <= values["start"] < values["end"]:
                 raise CaptureSetError(f"{where('start')}: frame range [{values['start']}, {values['end']}) is empty "
                                       f"or negative")
-            if not values["fps"] > 0:
-                raise CaptureSetError(f"{where('fps')}: must be positive, got {raw['fps']!r}")
+            if not (math.isfinite(values["fps"]) and values["fps"] > 0):
+                raise CaptureSetError(f"{where('fps')}: must be a positive number, got {_cell(raw['fps'])}")
             label = raw["class"].strip()
+            if not label:
+                raise CaptureSetError(f"{where('class')}: empty")
             if classes is not None and label not in classes:
-                raise CaptureSetError(f"{where('class')}: unknown class {label!r} (classes: {', '.join(classes)})")
-            if fmt == "amc" and not (raw["skeleton"] or "").strip():
+                raise CaptureSetError(f"{where('class')}: unknown class {_cell(label)} (classes: {', '.join(classes)})")
+            if not raw["subject"].strip():
+                raise CaptureSetError(f"{where('subject')}: empty")
+            skeleton = (raw["skeleton"] or "").strip()
+            if fmt == "amc" and not skeleton:
                 raise CaptureSetError(f"{where('skeleton')}: an amc row needs its ASF skeleton file")
-            rows.append(CaptureRow(manifest=path, line=line, file=raw["file"].strip(), format=fmt,
-                                   skeleton=(raw["skeleton"] or "").strip(), subject=raw["subject"].strip(),
+            if skeleton:
+                _relative(skeleton, where("skeleton"))
+            rows.append(CaptureRow(manifest=path, line=line, file=_relative(raw["file"].strip(), where("file")),
+                                   format=fmt, skeleton=skeleton, subject=raw["subject"].strip(),
                                    trial=raw["trial"].strip(), label=label, start=values["start"],
                                    end=values["end"], fps=values["fps"]))
+    except csv.Error as exc:
+        raise CaptureSetError(f"{path}: line {reader.line_num}: not valid CSV ({exc})") from None
+    if not rows:
+        raise CaptureSetError(f"{path}: the manifest has a header but no rows")
     return rows
+
+
+def demos_by_class(rows: list[CaptureRow]) -> dict[str, list[int]]:
+    """The positions in ``rows`` of each class's demonstrations, in manifest order: demonstration ``d`` of
+    class ``c`` (a run's ``test_demo``) is ``rows[demos_by_class(rows)[c][d]]``. The one numbering the runner
+    plans with and the pipeline loads by."""
+    out: dict[str, list[int]] = {}
+    for i, row in enumerate(rows):
+        out.setdefault(row.label, []).append(i)
+    return out
 
 
 class _SourceCache:

@@ -31,6 +31,7 @@ from harness import geometry
 from harness.body import BodyModel, forward_points, geom_z_range
 from harness.motion import repertoire  # noqa: F401  (registers the primitives)
 from harness.motion.motion import Motion
+from harness.streams import named_stream
 from harness.motion.primitives import (JOINT_NAMES, PerformerError, Plan, Take, lookup, mirror, registered,
                                       soft_clip)
 
@@ -237,3 +238,17 @@ def demonstrations(label: str, n: int, rng: np.random.Generator, fps: float = 30
 
 if set(CLASSES) != set(registered()):      # a primitive added to the repertoire must be named here too
     raise ImportError(f"CLASSES {CLASSES} and the registered primitives {registered()} disagree")
+
+
+def training_set(classes: tuple[str, ...] | list[str], demos: int, seed: int, fps: float = 30.0,
+                 body: BodyModel | None = None) -> list[Motion]:
+    """The procedural training set of a database: ``demos`` demonstrations of each class, by subjects
+    ``0 .. demos-1``, class ``c`` drawn from ``named_stream(seed, "train/<c>")`` (so a class's demonstrations
+    do not depend on which other classes are listed). The one recipe ``harness train-database`` and the
+    evaluation share: "a database trained with seed 0" means the same thing in both."""
+    out: list[Motion] = []
+    for c in classes:
+        rng = named_stream(seed, f"train/{c}")
+        out += [demonstrations(c, 1, rng, fps=fps, subject=s, body=body)[0] for s in range(demos)]
+    return out
+

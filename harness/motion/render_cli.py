@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.cli import command
+from harness.commands import command
 from harness.errors import HarnessError
 from harness.io import write_atomic
 

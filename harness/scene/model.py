@@ -8,9 +8,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from harness.body import DEFAULT_MODEL_PATH, BodyModel, SurfacePoints
+from harness.body import BodyModel, SurfacePoints
 from harness.scene.markers import BODY_RGBA, add_marker_sites
-from harness.scene.occluders import Box, add_occluder_geoms
+from harness.scene.occluders import Obstacle, add_occluder_geoms
 
 CAMERA_NAME = "scene"
 MAX_RENDER_SCALE = 4
@@ -23,9 +23,9 @@ class SceneModel:
     site_ids: ``(N,)`` site id of marker ``i``. obstacle_geoms: ``(K,)`` geom ids of the occluders.
     """
 
-    def __init__(self, body: BodyModel, markers: SurfacePoints, boxes: list[Box], fovy: float,
+    def __init__(self, body: BodyModel, markers: SurfacePoints, boxes: list[Obstacle], fovy: float,
                  width: int, height: int):
-        spec = mujoco.MjSpec.from_file(str(body.path or DEFAULT_MODEL_PATH))
+        spec = body.mjspec()
         for mat in spec.materials:
             if mat.name == "skin":
                 mat.rgba = BODY_RGBA

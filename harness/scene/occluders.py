@@ -1,7 +1,9 @@
 """Obstacles between the camera and the subject, sized so that they hide a requested fraction of it.
 
-An occluder is a box standing in the world (``Box``: centre, half-sizes, yaw about world z). Presets are
-registered by name and map one scalar ``size`` parameter to a list of boxes; coverage is monotone in it:
+An occluder is an upright geom standing in the world (``Obstacle``: a box, cylinder or capsule with its centre,
+MuJoCo half-sizes and yaw about world z). Obstacles come from a preset or are given by hand
+(``OccluderSpec.geoms``, in the subject's start frame, see ``custom_obstacles``). Presets are registered by
+name and map one scalar ``size`` parameter to a list of boxes; coverage is monotone in it:
 
 - ``none``: nothing.
 - ``low_wall``: a wall across the line of sight, from the floor up to a height: hides the legs first.
@@ -23,9 +25,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from harness.body.surface import BOX, geom_sdf
+from harness import geometry
+from harness.body.surface import BOX, CAPSULE, CYLINDER, geom_sdf
 from harness.scene.camera import WORLD_UP, CameraTrajectory
-from harness.scene.spec import OccluderSpec, SceneError
+from harness.scene.spec import OccluderGeom, OccluderSpec, SceneError
 
 OCCLUDER_GROUP = 3                      # MuJoCo geom group of occluders (rays and renderer include it)
 OCCLUDER_RGBA = (0.30, 0.34, 0.52, 1.0)
@@ -34,15 +37,23 @@ MARGIN = 0.3                            # m, lateral and vertical margin beyond 
 MIN_CLEARANCE = 0.8                     # m, the nearest subject point must be this far from the camera
 BISECTION_STEPS = 40
 MAX_BOXES = 64
+GEOM_TYPES = {"box": BOX, "cylinder": CYLINDER, "capsule": CAPSULE}
 
 
 @dataclass(frozen=True)
-class Box:
-    """An upright box: centre ``(3,)`` world metres, half-sizes ``(3,)`` metres, yaw (rad) about world z."""
+class Obstacle:
+    """An upright geom: centre ``(3,)`` world metres, MuJoCo half-sizes ``(3,)`` metres (box: half extents;
+    cylinder: radius, half height; capsule: radius, half length of the cylindrical part), yaw (rad) about
+    world z, and ``kind`` (``box``, ``cylinder``, ``capsule``)."""
 
     centre: np.ndarray
     half: np.ndarray
     yaw: float
+    kind: str = "box"
+
+    @property
+    def geom_type(self) -> int:
+        return GEOM_TYPES[self.kind]
 
     def to_local(self, points: np.ndarray) -> np.ndarray:
         """World points ``(..., 3)`` in the box's own frame."""
@@ -54,14 +65,17 @@ class Box:
         return np.array([np.cos(0.5 * self.yaw), 0.0, 0.0, np.sin(0.5 * self.yaw)])
 
 
-def segments_blocked(start: np.ndarray, end: np.ndarray, boxes: list[Box], eps: float = 1e-9) -> np.ndarray:
-    """Whether each segment ``start -> end`` (both ``(R, 3)``) passes through any box before its end: ``(R,)``.
+def segments_blocked(start: np.ndarray, end: np.ndarray, boxes: list[Obstacle], eps: float = 1e-9) -> np.ndarray:
+    """Whether each segment ``start -> end`` (both ``(R, 3)``) passes through any box before its end: ``(R,)``
+    (boxes only: the presets' calibration; custom obstacles are measured by the ray caster).
 
     Slab test in each box frame: the segment ``a + s (b - a)``, ``s`` in [0, 1], meets the box if the
     intervals where it is inside each pair of faces overlap somewhere in [0, 1).
     """
     blocked = np.zeros(len(start), dtype=bool)
     for box in boxes:
+        if box.kind != "box":
+            raise SceneError(f"segments_blocked: {box.kind} obstacles are not supported (boxes only)")
         a, b = box.to_local(start), box.to_local(end)
         d = b - a
         safe = np.where(np.abs(d) > eps, d, eps)
@@ -94,14 +108,14 @@ class _Layout:
     top: float
 
     def box(self, depth: float, lateral: tuple[float, float], height: tuple[float, float],
-            thickness: float) -> Box:
+            thickness: float) -> Obstacle:
         centre = (self.origin[:2] + depth * self.forward[:2] + 0.5 * (lateral[0] + lateral[1]) * self.right[:2])
         yaw = float(np.arctan2(self.forward[1], self.forward[0]))
         half = np.array([0.5 * thickness, 0.5 * (lateral[1] - lateral[0]), 0.5 * (height[1] - height[0])])
-        return Box(np.append(centre, 0.5 * (height[0] + height[1])), half, yaw)
+        return Obstacle(np.append(centre, 0.5 * (height[0] + height[1])), half, yaw)
 
 
-_PRESETS: dict[str, Callable[[_Layout, np.random.Generator], tuple[Callable[[float], list[Box]], float]]] = {}
+_PRESETS: dict[str, Callable[[_Layout, np.random.Generator], tuple[Callable[[float], list[Obstacle]], float]]] = {}
 
 
 def preset(name: str):
@@ -134,7 +148,7 @@ def _pillar(layout: _Layout, rng: np.random.Generator):
     lo, hi = layout.lateral[0] - MARGIN, layout.lateral[1] + MARGIN
     height = (0.0, layout.top + MARGIN)
 
-    def boxes(w: float) -> list[Box]:
+    def boxes(w: float) -> list[Obstacle]:
         if w <= 0:
             return []
         side = (lo, lo + w) if from_left else (hi - w, hi)
@@ -155,7 +169,7 @@ def _boxes(layout: _Layout, rng: np.random.Generator):
         thickness = rng.uniform(0.15, 0.4)
         drawn.append((depth, (centre - 0.5 * width, centre + 0.5 * width), height, thickness))
 
-    def boxes(k: float) -> list[Box]:
+    def boxes(k: float) -> list[Obstacle]:
         # The first floor(k) crates at full height, the next one scaled by the fractional part.
         full, frac = int(np.floor(k)), k - np.floor(k)
         out = [layout.box(d, lat, (0.0, h), th) for d, lat, h, th in drawn[:full]]
@@ -191,7 +205,7 @@ def _layout(traj: CameraTrajectory, marker_world: np.ndarray, in_view: np.ndarra
                    float(max(cross[:, 2].max(), 0.1)))
 
 
-def coverage(boxes: list[Box], traj: CameraTrajectory, marker_world: np.ndarray, in_view: np.ndarray) -> float:
+def coverage(boxes: list[Obstacle], traj: CameraTrajectory, marker_world: np.ndarray, in_view: np.ndarray) -> float:
     """Pooled fraction of in-view marker-frames whose line of sight crosses a box."""
     if not in_view.any():
         return 0.0
@@ -199,13 +213,37 @@ def coverage(boxes: list[Box], traj: CameraTrajectory, marker_world: np.ndarray,
     return float(segments_blocked(cams, marker_world[in_view], boxes).mean())
 
 
-def build_occluders(spec: OccluderSpec, traj: CameraTrajectory, marker_world: np.ndarray, in_view: np.ndarray
-                    ) -> list[Box]:
-    """Boxes of ``spec.preset`` sized so that they hide ``spec.amount`` of the in-view marker-frames.
+def custom_obstacles(geoms: tuple[OccluderGeom, ...], start_pos: np.ndarray, start_heading: float
+                     ) -> list[Obstacle]:
+    """Obstacles given in the subject's start frame (origin at the base's xy at the first frame, on the floor;
+    x along the initial heading ``start_heading`` rad) placed in the world."""
+    c, s = np.cos(start_heading), np.sin(start_heading)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    origin = np.array([start_pos[0], start_pos[1], 0.0])
+    out = []
+    for g in geoms:
+        half = np.zeros(3)
+        half[:len(g.size)] = g.size
+        out.append(Obstacle(origin + rot @ np.asarray(g.pos, float), half, start_heading + np.deg2rad(g.yaw),
+                            g.type))
+    return out
+
+
+def start_pose(base_pos: np.ndarray, base_quat: np.ndarray) -> tuple[np.ndarray, float]:
+    """The subject's start frame from a motion's base ``(T, 3)``, ``(T, 4)``: first base xy and heading (rad)."""
+    return np.asarray(base_pos)[0], float(geometry.heading(np.asarray(base_quat)[0]))
+
+
+def build_occluders(spec: OccluderSpec, traj: CameraTrajectory, marker_world: np.ndarray, in_view: np.ndarray,
+                    start: tuple[np.ndarray, float] = (np.zeros(3), 0.0)) -> list[Obstacle]:
+    """The scene's obstacles: ``spec.geoms`` placed from the subject's ``start`` frame (``start_pose``), or
+    boxes of ``spec.preset`` sized so that they hide ``spec.amount`` of the in-view marker-frames.
 
     marker_world: ``(T, N, 3)`` markers in the world (m). in_view: ``(T, N)`` bool, in front of the camera
     and inside the image. Raises ``SceneError`` if the amount cannot be reached.
     """
+    if spec.geoms:
+        return custom_obstacles(spec.geoms, *start)
     if spec.preset not in _PRESETS:
         raise SceneError(f"occluders.preset={spec.preset!r}: unknown preset; presets: {', '.join(_PRESETS)}")
     if spec.amount == 0.0 or spec.preset == "none":
@@ -234,20 +272,21 @@ def build_occluders(spec: OccluderSpec, traj: CameraTrajectory, marker_world: np
     return boxes_of(hi)
 
 
-def check_camera_outside(boxes: list[Box], camera_pos: np.ndarray, preset_name: str) -> None:
-    """Raise ``SceneError`` if a camera position ``(T, 3)`` lies inside (or on) an occluder."""
+def check_camera_outside(boxes: list[Obstacle], camera_pos: np.ndarray, what: str) -> None:
+    """Raise ``SceneError`` if a camera position ``(T, 3)`` lies inside (or on) an occluder; ``what`` names the
+    occluders in the message (``occluders.preset='pillar'``, ``occluders.geoms``)."""
     for k, box in enumerate(boxes):
-        inside = geom_sdf(BOX, box.half, box.to_local(camera_pos)) <= 1e-3
+        inside = geom_sdf(box.geom_type, box.half, box.to_local(camera_pos)) <= 1e-3
         if inside.any():
             t = int(np.argmax(inside))
-            raise SceneError(f"occluders.preset={preset_name!r}: the camera at frame {t} (position "
-                             f"{np.round(camera_pos[t], 2).tolist()} m) is inside occluder {k}")
+            raise SceneError(f"{what}: the camera at frame {t} (position "
+                             f"{np.round(camera_pos[t], 2).tolist()} m) is inside occluder {k}", what.split("=")[0])
 
 
-def add_occluder_geoms(mjspec: mujoco.MjSpec, boxes: list[Box]) -> None:
-    """Add the boxes to the world body of a model being built, as geoms named ``occluder<k>`` in group 3."""
+def add_occluder_geoms(mjspec: mujoco.MjSpec, boxes: list[Obstacle]) -> None:
+    """Add the obstacles to the world body of a model being built, as geoms named ``occluder<k>`` in group 3."""
     for k, box in enumerate(boxes):
-        mjspec.worldbody.add_geom(name=f"occluder{k}", type=mujoco.mjtGeom.mjGEOM_BOX, size=box.half,
+        mjspec.worldbody.add_geom(name=f"occluder{k}", type=mujoco.mjtGeom(box.geom_type), size=box.half,
                                   pos=box.centre, quat=box.quat(), group=OCCLUDER_GROUP, rgba=OCCLUDER_RGBA,
                                   contype=0, conaffinity=0)
 

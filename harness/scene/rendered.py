@@ -16,7 +16,6 @@ coordinates, so an array index ``k`` is the continuous coordinate ``k + 0.5``.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import TYPE_CHECKING
 
 import cv2
 import mujoco
@@ -24,10 +23,8 @@ import numpy as np
 
 from harness.scene.markers import DOT_GROUP
 from harness.scene.occluders import OCCLUDER_GROUP
+from harness.scene.setup import SceneSetup
 from harness.scene.visibility import VISIBLE
-
-if TYPE_CHECKING:
-    from harness.scene.simulate import SceneSetup
 
 DOT_THRESHOLD = 60          # greenness (0..255) above which a pixel belongs to a dot
 FB_MAX_PX = 0.5             # forward-backward Lucas-Kanade consistency, pixels
@@ -37,6 +34,10 @@ MERGED_AREA = 3.0         # blob area, relative to the median, above which a blo
 DEPTH_TOLERANCE = 5e-3     # m: buffer depth this far in front of the marker's tangent plane hides it
 DEPTH_MARGIN = 0.02        # m: buffer depth this far behind the tangent plane sees past the marker
 DEPTH_SCALE = 2            # depth check renders at this multiple of the camera resolution
+# Acceptance requirement of rendered flows (docs/scene.md; benchmarks/scene_acceptance.py, tests): at least this
+# fraction of the geometric flows recovered, with a median endpoint error of at most REQUIRED_MEDIAN_PX.
+REQUIRED_RECOVERY = 0.9
+REQUIRED_MEDIAN_PX = 0.5
 LK_WINDOW = (9, 9)         # px: small enough that a neighbouring dot rarely shares the window
 LK_LEVELS = 3
 
@@ -51,7 +52,7 @@ def scene_option(dots: bool) -> mujoco.MjvOption:
     return opt
 
 
-def render_frames(setup: "SceneSetup", qpos: np.ndarray, depth: bool = False, dots: bool = True,
+def render_frames(setup: SceneSetup, qpos: np.ndarray, depth: bool = False, dots: bool = True,
                   scale: int = 1) -> Iterator[np.ndarray]:
     """Yield the camera's images: RGB ``(H, W, 3) uint8``, or depth ``(H, W)`` metres along the optical axis.
 
@@ -133,7 +134,7 @@ def match_markers(points: np.ndarray, pixels: np.ndarray, visible: np.ndarray) -
     return np.where(dist[np.arange(len(points)), best] < MATCH_PX, idx[best], -1)
 
 
-def rendered_flows(setup: "SceneSetup", qpos: np.ndarray, fps: float) -> list[tuple[np.ndarray, np.ndarray]]:
+def rendered_flows(setup: SceneSetup, qpos: np.ndarray, fps: float) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per frame ``(rows (M, 4), marker ids (M,))`` from rendered images (unshuffled, no dropout)."""
     out: list[tuple[np.ndarray, np.ndarray]] = []
     prev_green, prev_dots = None, None
@@ -170,7 +171,7 @@ def _tangent_plane_depth(intr, normal_cam: np.ndarray, point_cam: np.ndarray, ce
     return np.where(np.isfinite(lam) & (lam > 0.0), lam, point_cam[:, 2])
 
 
-def depth_visible(setup: "SceneSetup", qpos: np.ndarray, tolerance: float = DEPTH_TOLERANCE,
+def depth_visible(setup: SceneSetup, qpos: np.ndarray, tolerance: float = DEPTH_TOLERANCE,
                   scale: int = DEPTH_SCALE, margin: float = DEPTH_MARGIN) -> np.ndarray:
     """Visibility from the renderer's depth buffer, ``(T, N)`` bool (an independent check of ray casting).
 

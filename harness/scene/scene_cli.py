@@ -6,10 +6,8 @@ import argparse
 
 import numpy as np
 
-from harness.cli import command
+from harness.commands import command
 from harness.errors import HarnessError
-
-ARROW_SECONDS = 0.1     # an arrow shows the displacement over this time (px/s times seconds = px)
 
 
 def _args(p: argparse.ArgumentParser) -> None:
@@ -35,21 +33,9 @@ def _motion(args):
 
     if args.motion:
         return Motion.load(args.motion)
-    from harness.motion.performer import demonstrations   # lands later; imported only when asked for
+    from harness.motion.performer import demonstrations
 
     return demonstrations(args.label, 1, np.random.default_rng(args.seed), fps=30.0)[0]
-
-
-def draw_flows(rgb: np.ndarray, flows: np.ndarray, outlier: np.ndarray | None = None) -> np.ndarray:
-    """Arrows from ``p - flow * ARROW_SECONDS`` to ``p`` for rows ``(u, v, du, dv)``; a new RGB image."""
-    import cv2
-
-    img = np.ascontiguousarray(rgb.copy())
-    for k, (u, v, du, dv) in enumerate(flows):
-        colour = (255, 60, 60) if outlier is not None and outlier[k] else (255, 230, 0)
-        start = (int(round(u - du * ARROW_SECONDS)), int(round(v - dv * ARROW_SECONDS)))
-        cv2.arrowedLine(img, start, (int(round(u)), int(round(v))), colour, 1, cv2.LINE_AA, tipLength=0.3)
-    return img
 
 
 def _spec(args):
@@ -88,7 +74,7 @@ def scene_video(args: argparse.Namespace) -> int:
     from harness.body import BodyModel
     from harness.scene.rendered import render_frames
     from harness.scene.simulate import build_setup, simulate
-    from harness.video import write_video
+    from harness.video import draw_flows, write_video
 
     motion = _motion(args)
     spec = _spec(args)

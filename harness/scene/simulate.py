@@ -21,17 +21,20 @@ from pathlib import Path
 import numpy as np
 
 from harness import geometry
-from harness.body import BodyModel, SurfacePoints, forward_points
+from harness.body import BodyModel, SurfacePoints
 from harness.io import save_npz_atomic
 from harness.motion.motion import Motion
 from harness.observation import Observation
-from harness.pinhole import Intrinsics, in_image, project
-from harness.scene.camera import CameraTrajectory, camera_trajectory, camera_velocity
-from harness.scene.markers import sample_markers
-from harness.scene.model import SceneModel
-from harness.scene.occluders import Box, build_occluders, check_camera_outside
+from harness.pinhole import Intrinsics, in_image
+from harness.scene.camera import camera_velocity
+from harness.scene.occluders import GEOM_TYPES, Obstacle
+from harness.scene.rendered import rendered_flows
+from harness.scene.setup import SceneSetup, build_setup
 from harness.scene.spec import ObservationSpec, SceneError, SceneSpec
-from harness.scene.visibility import OUTSIDE, VISIBLE, classify, in_view, marker_normals, occlusion_fractions
+from harness.scene.visibility import OUTSIDE, VISIBLE, occlusion_fractions
+
+__all__ = ["GroundTruth", "SceneSetup", "SceneWarning", "build_setup", "finish_frames", "geometric_flows",
+           "simulate"]
 
 OUTLIER_SPEED = 300.0   # px/s: bound of each outlier velocity component (10 px per frame at 30 fps)
 
@@ -45,12 +48,15 @@ class GroundTruth:
     """What the engine must not see; ``T`` frames, ``N`` markers.
 
     marker_ids: per frame ``(M_t,)`` int, the marker of each flow row, -1 for outlier rows (and, in rendered
-    mode, for tracked dots that match no visible marker). markers: the placement. qpos: ``(T, 57)`` world.
+    mode, for tracked dots that match no visible marker). markers: the placement, in the frames of the
+    observed subject's bodies. qpos: ``(T, 57)`` world, the observed subject's configurations.
     base_pos_cam: ``(T, 3)`` m and base_quat_cam: ``(T, 4)`` wxyz, the base in the camera frame (OpenCV).
     camera_pos: ``(T, 3)`` world m. camera_rot: ``(T, 3, 3)`` world-from-camera, OpenCV axes as columns.
     visibility: ``(T, N)`` int8 cause (0 visible, 1 outside view, 2 hidden by the body, 3 by an obstacle).
     self_fraction, obstacle_fraction: ``(T,)`` fractions of the in-view markers hidden by each cause.
-    pixels: ``(T, N, 2)`` true projected marker pixels (NaN behind the camera). occluders: the boxes.
+    pixels: ``(T, N, 2)`` true projected marker pixels (NaN behind the camera). occluders: the obstacles.
+    segment_scale: ``(nbody,)`` the observed subject's segment factors against the model file (ones: nominal;
+    ``BodyModel.scaled`` rebuilds the subject's body from them).
     """
 
     marker_ids: list[np.ndarray]
@@ -64,7 +70,8 @@ class GroundTruth:
     self_fraction: np.ndarray
     obstacle_fraction: np.ndarray
     pixels: np.ndarray
-    occluders: list[Box]
+    occluders: list[Obstacle]
+    segment_scale: np.ndarray
 
     def obstacle_occlusion(self) -> float:
         """Pooled fraction of in-view marker-frames hidden by obstacles."""
@@ -73,7 +80,9 @@ class GroundTruth:
 
     def save(self, path: str | Path) -> None:
         """Plain ``.npz`` (no pickle); ragged ``marker_ids`` stored flat with per-frame counts."""
-        boxes = np.array([np.concatenate([b.centre, b.half, [b.yaw]]) for b in self.occluders]).reshape(-1, 7)
+        kinds = list(GEOM_TYPES)
+        boxes = np.array([np.concatenate([[kinds.index(b.kind)], b.centre, b.half, [b.yaw]])
+                          for b in self.occluders]).reshape(-1, 8)
         save_npz_atomic(path, {
             "marker_ids": np.concatenate(self.marker_ids) if self.marker_ids else np.empty(0, int),
             "marker_counts": np.array([len(i) for i in self.marker_ids], dtype=int),
@@ -82,7 +91,7 @@ class GroundTruth:
             "qpos": self.qpos, "base_pos_cam": self.base_pos_cam, "base_quat_cam": self.base_quat_cam,
             "camera_pos": self.camera_pos, "camera_rot": self.camera_rot, "visibility": self.visibility,
             "self_fraction": self.self_fraction, "obstacle_fraction": self.obstacle_fraction,
-            "pixels": self.pixels, "occluders": boxes,
+            "pixels": self.pixels, "occluders": boxes, "segment_scale": self.segment_scale,
         })
 
     @classmethod
@@ -94,48 +103,15 @@ class GroundTruth:
             bounds = np.concatenate([[0], np.cumsum(a["marker_counts"])])
             ids = [a["marker_ids"][bounds[t]:bounds[t + 1]] for t in range(len(a["marker_counts"]))]
             markers = SurfacePoints(a["marker_body"], a["marker_geom"], a["marker_local"], a["marker_normal"])
-            boxes = [Box(r[:3], r[3:6], float(r[6])) for r in a["occluders"]]
+            kinds = list(GEOM_TYPES)
+            boxes = [Obstacle(r[1:4], r[4:7], float(r[7]), kinds[int(r[0])]) for r in a["occluders"]]
             return cls(ids, markers, a["qpos"], a["base_pos_cam"], a["base_quat_cam"], a["camera_pos"],
                        a["camera_rot"], a["visibility"], a["self_fraction"], a["obstacle_fraction"],
-                       a["pixels"], boxes)
+                       a["pixels"], boxes, a["segment_scale"])
         except FileNotFoundError:
             raise SceneError(f"{path}: no such ground-truth file") from None
-        except (KeyError, ValueError, OSError) as exc:
-            raise SceneError(f"{path}: not a ground-truth file ({exc})") from None
-
-
-@dataclass
-class SceneSetup:
-    """Everything that is fixed once the spec and motion are known (reused by rendering and videos)."""
-
-    body: BodyModel
-    markers: SurfacePoints
-    camera: CameraTrajectory
-    occluders: list[Box]
-    scene: SceneModel
-    marker_world: np.ndarray      # (T, N, 3) m
-    marker_cam: np.ndarray        # (T, N, 3) m, OpenCV camera frame
-    pixels: np.ndarray            # (T, N, 2) px, NaN where behind the camera
-    visibility: np.ndarray        # (T, N) int8 cause
-    marker_normal: np.ndarray     # (T, N, 3) outward unit normals, world
-
-
-def build_setup(motion: Motion, spec: SceneSpec, body: BodyModel | None = None) -> SceneSetup:
-    """Markers, camera, calibrated occluders, the compiled scene and the visibility of every marker."""
-    body = body if body is not None else BodyModel.load()
-    markers = sample_markers(body, spec.markers)
-    traj = camera_trajectory(motion, spec.camera)
-    world = forward_points(body, motion.qpos, markers.body, markers.local)
-    cam = traj.to_camera(world)
-    view = in_view(traj.intrinsics, cam)
-    boxes = build_occluders(spec.occluders, traj, world, view)
-    check_camera_outside(boxes, traj.pos, spec.occluders.preset)
-    scene = SceneModel(body, markers, boxes, spec.camera.fovy, spec.camera.width, spec.camera.height)
-    normals = marker_normals(scene, motion.qpos, markers.normal)
-    cause = classify(scene, motion.qpos, traj, world, normals)
-    front = cam[..., 2] > 0
-    pixels = np.where(front[..., None], project(traj.intrinsics, np.where(front[..., None], cam, 1.0)), np.nan)
-    return SceneSetup(body, markers, traj, boxes, scene, world, cam, pixels, cause, normals)
+        except (KeyError, ValueError, IndexError, OSError, EOFError) as exc:
+            raise SceneError(f"{path}: not a ground-truth file ({type(exc).__name__})") from None
 
 
 def geometric_flows(pixels: np.ndarray, visible: np.ndarray, fps: float, noise_px: float,
@@ -190,9 +166,8 @@ def simulate(motion: Motion, spec: SceneSpec, rng: np.random.Generator, body: Bo
     if not visible.any():
         warnings.warn(f"the camera sees none of the {len(setup.markers)} markers over {motion.n_frames} frames "
                       f"(camera {spec.camera}); the observation is empty", SceneWarning, stacklevel=2)
+    motion = setup.motion
     if spec.observation.mode == "rendered":
-        from harness.scene.rendered import rendered_flows
-
         frames = rendered_flows(setup, motion.qpos, motion.fps)
     else:
         frames = geometric_flows(setup.pixels, visible, motion.fps, spec.observation.noise_px,
@@ -209,5 +184,6 @@ def simulate(motion: Motion, spec: SceneSpec, rng: np.random.Generator, body: Bo
     base_rot_cam = rot_t @ geometry.to_matrix(motion.base_quat)
     self_fraction, obstacle_fraction = occlusion_fractions(cause)
     truth = GroundTruth(ids, setup.markers, np.array(motion.qpos), base_pos_cam, geometry.from_matrix(base_rot_cam),
-                        traj.pos, traj.rot, cause, self_fraction, obstacle_fraction, setup.pixels, setup.occluders)
+                        traj.pos, traj.rot, cause, self_fraction, obstacle_fraction, setup.pixels, setup.occluders,
+                        setup.body.segment_scale.copy())
     return observation, truth

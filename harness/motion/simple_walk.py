@@ -1,4 +1,5 @@
-"""A small synthetic walk for scene tests and benchmarks (until the procedural performer lands).
+"""A simple synthetic walk (sinusoidal legs and arms, feet on the floor) for the scene's tests and acceptance
+checks: shorter and simpler than a procedural demonstration, so that rendering checks are quick and repeatable.
 
 The base advances along +x at ``speed`` m/s facing +x; hips, knees, ankles, shoulders and elbows swing with
 sinusoids inside their joint limits; the base height is set each frame so that the lowest point of the
@@ -36,4 +37,4 @@ def walk_motion(body: BodyModel, n_frames: int = 60, fps: float = 30.0, speed: f
     qpos = body.qpos(angles, base_pos=np.outer(speed * t, direction) + [0.0, 0.0, 0.95], base_quat=quat)
     lowest = geom_z_range(body, qpos)[:, :, 0].min(axis=1)
     qpos[:, 2] -= lowest
-    return Motion(qpos, fps, "walk", source="synthetic:tests.scene_motions")
+    return Motion(qpos, fps, "walk", source="synthetic:simple_walk")

@@ -1,0 +1,79 @@
+"""The engine's settings: every tuned constant by name, with where its value came from."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from harness.errors import EngineError
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Engine settings. Distances in metres, angles in degrees unless a name says rad, noise in pixels.
+    Where a value was chosen by measurement, the comment says on what."""
+
+    particles: int = 200                     # in total over all tracks
+    model_points: int = 150                  # the engine's own surface sample
+    model_seed: int = 7                      # ... seeded independently of the markers
+    init_distance: tuple[float, float] = (2.0, 8.0)    # prior range of the subject's distance
+    init_elevation: tuple[float, float] = (-10.0, 40.0)  # prior range of the camera's pitch (no gravity given)
+    init_factor: int = 8                     # the first frame weighs this many times more particles (issue 5)
+    noise_px: float = 1.0                    # assumed pixel noise of flow positions
+    outlier_prob: float = 0.05
+    weight_iterations: int = 2               # EM steps on the model points' mixture weights (docs/engine.md)
+    weight_smoothing: float = 10.0           # pseudo-flows holding those weights towards uniform
+    n_eff_filter: float = 4.0                # tempering: a frame counts as at most this many flows (dev seeds)
+    n_eff_recognition: float = 3.0           # ... for the recognition and the evidence (dev seeds)
+    start_spread: float = 0.05               # start probability spread over all states
+    prune: float = 1e-4                      # states below this times their primitive's best are not scored
+    position_noise: float = 0.15             # m / sqrt(s), process noise of the base position
+    rotation_noise: float = 0.3              # rad / sqrt(s), of the base orientation (yaw when gravity is known)
+    tilt_noise: float = 0.05                 # rad / sqrt(s), of the tilt when gravity is known
+    floor_std: float = 0.05                  # m: the lowest body point's height about a known floor ...
+    floor_flight: float = 0.2                # ... or, with this probability, in flight ...
+    floor_flight_height: float = 0.8         # ... up to this height (m)
+    refine_iterations: int = 2               # Gauss-Newton steps per M-step of recovery
+    refine_position_std: float = 0.25        # m: least pose freedom recovery has around the filter's estimate
+    refine_rotation_std: float = 0.3         # rad: recovery's rotation freedom around the filter's estimate
+    em_iterations: int = 3                   # re-assignments of flows to model points in recovery (issue 5)
+    guide_fraction: float = 0.1              # share of a track's particles proposed around recovery's pose
+    guide_rotation_std: float = 0.05         # rad, spread of those proposals (position: half the cloud's spread)
+    track_turns: tuple[float, ...] = (90.0, 180.0, -90.0)   # tracks spawned at these turns of the leader
+    twin_track: bool = True                  # and at the leader's depth-reflected twin
+    self_occlusion: bool = True              # the body hides itself in the likelihood (depth order)
+    occlusion_radius: float = 1.0            # footprint of a point's patch, in patch radii
+    occlusion_depth: float = 0.08            # m: a point must be this much nearer to cover another
+    min_spawn_ess: float = 5.0               # a track starts from the first frame's particles near it if they
+                                             # hold this many effective particles, else from the lead's turned
+    track_prune_nats: float = 30.0           # a track trailing the best by this much evidence is dropped
+    track_merge_deg: float = 30.0            # tracks closer than this in orientation ...
+    track_merge_m: float = 0.3               # ... and this in position merge (the one with less evidence goes)
+
+    def __post_init__(self):
+        positive = {"particles": self.particles, "model_points": self.model_points, "init_factor": self.init_factor,
+                    "n_eff_filter": self.n_eff_filter, "n_eff_recognition": self.n_eff_recognition,
+                    "noise_px": self.noise_px, "em_iterations": self.em_iterations}
+        for name, value in positive.items():
+            if not value > 0:
+                raise EngineError(f"engine setting {name} must be positive, got {value}")
+        for name in ("outlier_prob", "prune"):
+            value = getattr(self, name)
+            if not 0 < value < 1:
+                raise EngineError(f"engine setting {name} must be in (0, 1), got {value}")
+        if not 0 <= self.guide_fraction < 1:
+            raise EngineError(f"engine setting guide_fraction must be in [0, 1), got {self.guide_fraction}")
+        near, far = self.init_distance
+        if not 0 < near < far:
+            raise EngineError(f"engine setting init_distance must be [near, far] with 0 < near < far, "
+                              f"got {list(self.init_distance)}")
+        lo, hi = self.init_elevation
+        if not -90 < lo <= hi < 90:
+            raise EngineError(f"engine setting init_elevation must be [low, high] degrees within (-90, 90), "
+                              f"got {list(self.init_elevation)}")
+        if self.particles < self.n_tracks:
+            raise EngineError(f"engine setting particles ({self.particles}) must be at least the number of "
+                              f"tracks ({self.n_tracks})")
+
+    @property
+    def n_tracks(self) -> int:
+        return 1 + len(self.track_turns) + int(self.twin_track)

@@ -1,0 +1,183 @@
+"""The evaluation's methods, registered by name: what each is handed, what it produces, and how it is scored.
+
+A method is one function ``score(inputs: RunInputs) -> dict`` of metric columns, registered with ``method``.
+The pipeline runs every method a scenario lists through this registry, the scenario validates ``methods``
+against it, and the tables, plots and report take their order and their ``given`` / ``–`` cells from it:
+adding a method is one registration here.
+
+- ``full``: the engine from flows alone (particle filter, recognition, recovery);
+- ``gt_base``: the engine handed the true baselink pose (isolates recognition and recovery from tracking);
+- ``no_database``: per-frame fitting of the angles to the 2D points at the true baselink pose, without the
+  HMM prior (what the database's prior adds, compared with ``gt_base``); no recognition;
+- ``joint_space``: forward recognition from the true joint-space features (the upper bound); no recovery.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from harness.body import BodyModel, SurfacePoints
+from harness.engine import MotionDatabase, Tracker, motion_features, recognize_features
+from harness.engine.recovery import fit_without_database
+from harness.evaluation import metrics
+from harness.motion import Motion
+from harness.observation import Observation
+from harness.scene.simulate import GroundTruth
+
+RECOGNITION_COLUMNS = ("class_pred", "correct", "frame_accuracy", "time_to_correct_s", "log_p_true",
+                       "accuracy_curve")
+RECOVERY_COLUMNS = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", "pa_mpjpe_mm",
+                    "pa_mpjpe17_mm", "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m", "base_rot_err_deg",
+                    "heading_err_deg", "tilt_err_deg", "reproj_px")
+BASE_POSE_COLUMNS = ("base_pos_err_m", "base_depth_err_m", "base_rot_err_deg", "heading_err_deg", "tilt_err_deg")
+CURVE_POINTS = 10       # accuracy_curve: whether the argmax is right at 10 evenly spaced fractions of the clip
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """What a method may use in one run (the scorer sees the truth; the engine's inputs are obs and db).
+
+    body: the engine's nominal body. subject: the observed body (``body`` itself unless the scenario scales
+    the subject). motion: the test motion as the subject performed it. truth: the scene's ground truth.
+    tracker: a fresh engine (own random stream) on every call.
+    """
+
+    key: str
+    label: str
+    classes: tuple[str, ...]
+    body: BodyModel
+    subject: BodyModel
+    db: MotionDatabase
+    motion: Motion
+    obs: Observation
+    truth: GroundTruth
+    tracker: Callable[[], Tracker]
+
+
+@dataclass(frozen=True)
+class Method:
+    """A registered method. recognises/recovers: whether it produces the recognition and recovery columns
+    (``–`` in the report otherwise). given: columns it is handed rather than estimating (``given``)."""
+
+    name: str
+    score: Callable[[RunInputs], dict]
+    recognises: bool
+    recovers: bool
+    given: tuple[str, ...] = ()
+
+
+METHODS: dict[str, Method] = {}
+
+
+def method(name: str, recognises: bool, recovers: bool, given: tuple[str, ...] = ()):
+    """Register ``score(inputs) -> columns`` under ``name`` (registration order is the report's order)."""
+    def register(score: Callable[[RunInputs], dict]):
+        METHODS[name] = Method(name, score, recognises, recovers, given)
+        return score
+    return register
+
+
+def method_names() -> tuple[str, ...]:
+    return tuple(METHODS)
+
+
+def produces(name: str, column: str) -> bool:
+    """Whether method ``name`` produces ``column`` (recognition and recovery columns; others always)."""
+    m = METHODS.get(name)
+    if m is None:
+        return True
+    if column in RECOGNITION_COLUMNS:
+        return m.recognises
+    if column in RECOVERY_COLUMNS:
+        return m.recovers
+    return True
+
+
+# --- scoring ----------------------------------------------------------------------------------------------
+
+def accuracy_curve(posteriors: np.ndarray, classes, label: str, points: int = CURVE_POINTS) -> list[int]:
+    """Whether the argmax is the true class at frames ``round(k (T - 1) / (points - 1))``, ``k = 0..points-1``:
+    a compact per-run record of recognition against time since the start of the motion."""
+    post = np.asarray(posteriors, dtype=float)
+    frames = np.round(np.linspace(0, len(post) - 1, points)).astype(int)
+    return [int(v) for v in np.argmax(post[frames], axis=1) == list(classes).index(label)]
+
+
+def recognition_scores(post: np.ndarray, classes, label: str, fps: float) -> dict:
+    return (metrics.recognition(post, classes, label, fps)
+            | {"log_p_true": metrics.log_p_true(post, classes, label),
+               "accuracy_curve": accuracy_curve(post, classes, label)})
+
+
+def nominal_markers(markers: SurfacePoints, subject: BodyModel) -> SurfacePoints:
+    """The markers' corresponding points on the nominal body: each segment of the subject is a uniformly
+    scaled copy of the nominal one (``harness.body.scaling``), so body-frame coordinates divide by its factor."""
+    factor = subject.segment_scale[markers.body][:, None]
+    return SurfacePoints(markers.body, markers.geom, markers.local / factor, markers.normal)
+
+
+def recovery_scores(inputs: RunInputs, qpos_est: np.ndarray) -> dict:
+    """Recovery columns of an estimate ``(T, 57)`` (camera-frame base). True joints are the observed
+    subject's (a scaled subject's joints are where that subject's are; docs/evaluation.md)."""
+    body, subject, truth, obs = inputs.body, inputs.subject, inputs.truth, inputs.obs
+    true_cam = metrics.camera_qpos(subject, truth.base_pos_cam, truth.base_quat_cam, truth.qpos[:, 7:])
+    frame = np.concatenate([np.full(len(i), t) for t, i in enumerate(truth.marker_ids)]).astype(int)
+    marker = np.concatenate(truth.marker_ids).astype(int)
+    uv = np.concatenate([f[:, :2] for f in obs.flows])
+    keep = marker >= 0
+    h36m = metrics.h36m_joints(body)
+    out = {"angle_rms_deg": metrics.angle_rms_deg(qpos_est[:, 7:], truth.qpos[:, 7:]),
+           "mpjpe_pose_mm": metrics.mpjpe_pose_mm(body, qpos_est, true_cam, subject),
+           "mpjpe_cam_mm": metrics.mpjpe_camera_mm(body, qpos_est, true_cam, true_body=subject),
+           "mpjpe_cam17_mm": metrics.mpjpe_camera_mm(body, qpos_est, true_cam, h36m, true_body=subject),
+           "pa_mpjpe_mm": metrics.pa_mpjpe_mm(body, qpos_est, true_cam, true_body=subject),
+           "pa_mpjpe17_mm": metrics.pa_mpjpe_mm(body, qpos_est, true_cam, h36m, true_body=subject),
+           "mpjpe_abs_mm": metrics.mpjpe_absolute_mm(body, qpos_est, true_cam, subject),
+           "reproj_px": metrics.reprojection_px(body, qpos_est, nominal_markers(truth.markers, subject),
+                                                obs.intrinsics, frame[keep], marker[keep], uv[keep])}
+    out |= metrics.base_errors(qpos_est[:, :3], qpos_est[:, 3:7], truth.base_pos_cam, truth.base_quat_cam)
+    out |= metrics.heading_tilt_errors(qpos_est[:, 3:7], truth.base_quat_cam, truth.camera_rot)
+    return out
+
+
+def not_produced(columns: tuple[str, ...]) -> dict:
+    return {c: ("" if c == "class_pred" else [] if c == "accuracy_curve" else np.nan) for c in columns}
+
+
+def _engine(inputs: RunInputs, base_pose) -> dict:
+    if inputs.obs.counts.sum() == 0:        # nothing seen: nothing to score (NaN, counted as missing)
+        return not_produced(RECOGNITION_COLUMNS + RECOVERY_COLUMNS)
+    est = inputs.tracker().run(inputs.obs, base_pose=base_pose)
+    return (recognition_scores(est.class_posterior, inputs.classes, inputs.label, inputs.obs.fps)
+            | recovery_scores(inputs, est.qpos))
+
+
+@method("full", recognises=True, recovers=True)
+def _full(inputs: RunInputs) -> dict:
+    return _engine(inputs, None)
+
+
+@method("gt_base", recognises=True, recovers=True, given=BASE_POSE_COLUMNS)
+def _gt_base(inputs: RunInputs) -> dict:
+    return _engine(inputs, (inputs.truth.base_pos_cam, inputs.truth.base_quat_cam))
+
+
+@method("no_database", recognises=False, recovers=True, given=BASE_POSE_COLUMNS)
+def _no_database(inputs: RunInputs) -> dict:
+    tracker = inputs.tracker()
+    truth = inputs.truth
+    angles = fit_without_database(inputs.body, tracker.model.points, inputs.obs.intrinsics, inputs.obs.flows,
+                                  truth.base_pos_cam, truth.base_quat_cam, tracker.config.noise_px,
+                                  tracker.model.spread)
+    qpos = metrics.camera_qpos(inputs.body, truth.base_pos_cam, truth.base_quat_cam, angles)
+    return not_produced(RECOGNITION_COLUMNS) | recovery_scores(inputs, qpos)
+
+
+@method("joint_space", recognises=True, recovers=False)
+def _joint_space(inputs: RunInputs) -> dict:
+    post = recognize_features(inputs.db, motion_features(inputs.motion))
+    return (recognition_scores(post, inputs.classes, inputs.label, inputs.motion.fps)
+            | not_produced(RECOVERY_COLUMNS))

@@ -1,0 +1,175 @@
+"""``harness run-video RESULTS_DIR RUN_KEY --out run.mp4``: watch one run of an evaluation.
+
+The run is done again from its stored scenario (``RESULTS_DIR/scenario.json``) and seed (the pipeline is
+deterministic: same seed, same observation and estimate). Each video frame is the scene camera's image with the
+observed flows (yellow arrows, red for outliers) and the obstacles, the true body (green) and the engine's
+estimate (magenta) drawn over it as skeletons (joint centres joined parent to child), and beside it the class
+posterior over time (the true class drawn thick, a cursor at the current frame).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from harness.commands import command
+from harness.errors import HarnessError
+
+TRUE_RGB = (40, 220, 60)
+ESTIMATE_RGB = (240, 40, 220)
+PANEL_WIDTH = 360
+ENGINE_METHODS = ("full", "gt_base")
+
+
+class RunVideoError(HarnessError):
+    """A run that cannot be found or rendered."""
+
+
+def _args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("results_dir", help="a scenario's results directory (results/<name>)")
+    p.add_argument("run_key", help="the run's key, e.g. c000/r000/walk/d008 (column run_key of runs.csv)")
+    p.add_argument("--out", required=True, help="video file (.mp4 or .gif)")
+    p.add_argument("--method", default="full", choices=ENGINE_METHODS, help="the engine run to show (default full)")
+    p.add_argument("--png", default=None, help="also write frame --frame as a PNG (to look at one still)")
+    p.add_argument("--frame", type=int, default=None, help="frame written by --png (default: the middle)")
+
+
+def find_run(results_dir: Path, run_key: str):
+    """The stored scenario of ``results_dir`` and the ``RunSpec`` of ``run_key`` in its plan."""
+    from harness.evaluation.runner import plan
+    from harness.evaluation.scenario import ScenarioError, parse_scenario, scenario_hash
+
+    path = results_dir / "scenario.json"
+    if not path.is_file():
+        raise RunVideoError(f"{path}: no stored scenario (is {results_dir} a results directory of `harness "
+                            f"evaluate`?)")
+    try:
+        data = json.loads(path.read_text())
+        scenario = parse_scenario(data["scenario"], str(path))
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError):
+        raise RunVideoError(f"{path}: not a stored scenario") from None
+    except ScenarioError as exc:
+        raise RunVideoError(f"{path}: the stored scenario no longer validates ({exc})") from None
+    if data.get("hash") != scenario_hash(scenario):
+        print(f"note: {path}: stored under hash {data.get('hash')}, now {scenario_hash(scenario)} (the code or "
+              f"scenario changed): the run is done again with the current code", file=sys.stderr)
+    runs = {r.key: r for r in plan(scenario, results_dir.parent / "cache")}
+    if run_key not in runs:
+        example = next(iter(runs)) if runs else "none"
+        raise RunVideoError(f"{results_dir}: no run {run_key!r} in the plan of scenario {scenario.name!r} "
+                            f"({len(runs)} runs, e.g. {example})")
+    return scenario, runs[run_key]
+
+
+def _skeleton(img: np.ndarray, uv: np.ndarray, parents: np.ndarray, rgb, front: np.ndarray) -> None:
+    import cv2
+
+    pts = np.round(uv).astype(int)
+    for j, p in enumerate(parents):
+        if p >= 0 and front[j] and front[p]:
+            cv2.line(img, tuple(pts[p]), tuple(pts[j]), rgb, 2, cv2.LINE_AA)
+    for j in np.flatnonzero(front):
+        cv2.circle(img, tuple(pts[j]), 3, rgb, -1, cv2.LINE_AA)
+
+
+def posterior_panel(post: np.ndarray, classes, label: str, t: int, height: int, width: int = PANEL_WIDTH
+                    ) -> np.ndarray:
+    """The class posterior ``(T, C)`` up to frame ``t`` as lines over time, ``(height, width, 3) uint8``."""
+    import cv2
+    import matplotlib
+
+    panel = np.full((height, width, 3), 255, dtype=np.uint8)
+    top, bottom, left, right = 30, height - 20 - 14 * len(classes) // 2, 36, width - 10
+    T = len(post)
+    cmap = matplotlib.colormaps["tab10"]
+    cv2.rectangle(panel, (left, top), (right, bottom), (180, 180, 180), 1)
+    for y, text in ((top, "1"), (bottom, "0")):
+        cv2.putText(panel, text, (left - 14, y + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
+    xs = left + (right - left) * np.arange(t + 1) / max(T - 1, 1)
+    for c, name in enumerate(classes):
+        rgb = tuple(int(255 * v) for v in cmap(c % 10)[:3])
+        ys = bottom - (bottom - top) * post[: t + 1, c]
+        pts = np.stack([xs, ys], axis=1).round().astype(np.int32)
+        cv2.polylines(panel, [pts], False, rgb, 3 if name == label else 1, cv2.LINE_AA)
+        row, col = divmod(c, 2)
+        cv2.putText(panel, name + (" (true)" if name == label else ""), (left + col * (width // 2 - 10),
+                    bottom + 16 + 14 * row), cv2.FONT_HERSHEY_SIMPLEX, 0.38, rgb, 1, cv2.LINE_AA)
+    x = int(round(xs[-1]))
+    cv2.line(panel, (x, top), (x, bottom), (0, 0, 0), 1)
+    best = classes[int(np.argmax(post[t]))]
+    cv2.putText(panel, f"class posterior; now: {best} {post[t].max():.2f}", (8, 18), cv2.FONT_HERSHEY_SIMPLEX,
+                0.42, (0, 0, 0), 1, cv2.LINE_AA)
+    return panel
+
+
+def render_run(results_dir: str | Path, run_key: str, method: str = "full") -> tuple[list[np.ndarray], float, str]:
+    """The frames of one run's video, its frame rate and a one-line summary."""
+    import cv2
+
+    from harness.body import body_origins
+    from harness.evaluation import metrics, pipeline
+    from harness.evaluation.scenario import scene_spec
+    from harness.pinhole import project
+    from harness.scene.rendered import render_frames
+    from harness.scene.setup import build_setup
+    from harness.streams import named_stream
+    from harness.video import draw_flows
+
+    results_dir = Path(results_dir)
+    _, run = find_run(results_dir, run_key)
+    inputs = pipeline.run_inputs(run)
+    obs, truth, body = inputs.obs, inputs.truth, inputs.body
+    if obs.counts.sum() == 0:
+        raise RunVideoError(f"run {run_key}: the camera saw no flow, there is no estimate to show")
+    pose = (truth.base_pos_cam, truth.base_quat_cam) if method == "gt_base" else None
+    est = inputs.tracker().run(obs, base_pose=pose)
+    # The same scene again: the scene stream's first draws are the spec's (pipeline.simulate_run).
+    setup = build_setup(pipeline.test_motion(run), scene_spec(run.config, named_stream(run.seed, "scene")),
+                        pipeline.nominal_body())
+    intr = obs.intrinsics
+    true_cam = body_origins(inputs.subject, metrics.camera_qpos(inputs.subject, truth.base_pos_cam,
+                                                                truth.base_quat_cam, truth.qpos[:, 7:]))
+    est_cam = body_origins(body, est.qpos)
+    parents = body.model.body_parentid[1:] - 1
+    classes = list(inputs.classes)
+    frames = []
+    for t, rgb in enumerate(render_frames(setup, setup.motion.qpos)):
+        img = draw_flows(rgb, obs.flows[t], truth.marker_ids[t] < 0)
+        # The truth is drawn last: it is the reference the estimate is read against.
+        for joints, colour in ((est_cam[t], ESTIMATE_RGB), (true_cam[t], TRUE_RGB)):
+            front = joints[:, 2] > 0.05
+            _skeleton(img, project(intr, np.where(front[:, None], joints, 1.0)), parents, colour, front)
+        cv2.putText(img, f"{run_key}  t={t / obs.fps:.2f}s  true {run.test_class} (green), {method} (magenta)",
+                    (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (255, 255, 255), 1, cv2.LINE_AA)
+        frames.append(np.concatenate([img, posterior_panel(est.class_posterior, classes, run.test_class, t,
+                                                           img.shape[0])], axis=1))
+    summary = (f"{run_key}: true {run.test_class}, recognised {est.predicted}; obstacle occlusion "
+               f"{truth.obstacle_fraction.mean():.2f}, self-occlusion {truth.self_fraction.mean():.2f}")
+    return frames, obs.fps, summary
+
+
+@command("run-video", _args)
+def run_video_command(args: argparse.Namespace) -> int:
+    """Video of one evaluation run: camera image, flows, obstacles, true and estimated body, class posterior."""
+    from harness.video import VideoError, write_video
+
+    if Path(args.out).suffix.lower() not in (".mp4", ".gif"):
+        raise VideoError(f"--out {args.out}: video files must end in .mp4 or .gif")
+    frames, fps, summary = render_run(args.results_dir, args.run_key, args.method)
+    if args.png:
+        import cv2
+
+        k = len(frames) // 2 if args.frame is None else args.frame
+        if not 0 <= k < len(frames):
+            raise RunVideoError(f"--frame={k}: the run has {len(frames)} frames")
+        from harness.io import write_atomic
+
+        ok, buf = cv2.imencode(".png", cv2.cvtColor(frames[k], cv2.COLOR_RGB2BGR))
+        write_atomic(args.png, lambda fh: fh.write(buf.tobytes()))
+    n = write_video(args.out, frames, fps)
+    print(f"{args.out}: {n} frames; {summary}")
+    return 0
