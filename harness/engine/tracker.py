@@ -49,14 +49,16 @@ STAGES = ("propose", "weigh", "recognise", "recover", "manage")
 class Estimate:
     """What the engine recovers. qpos ``(T, 57)``: base pose in the camera frame (OpenCV axes) and the 50
     angles, from the track with the most evidence at each frame; class_posterior ``(T, C)`` over ``classes``,
-    the evidence-weighted mixture of the tracks' posteriors; filter_pos/filter_quat: that track's filter
-    estimate before refinement; n_tracks ``(T,)``; leader ``(T,)``: the origin of the leading track;
+    the evidence-weighted mixture of the tracks' posteriors; joint_posterior ``(T, C, K)``: the same mixture of
+    the tracks' posteriors over (primitive, state); filter_pos/filter_quat: that track's filter estimate before
+    refinement; n_tracks ``(T,)``; leader ``(T,)``: the origin of the leading track;
     ms_per_frame ``(T,)``; timing: mean ms per frame of each stage. Frames before the first flows take the
     first estimate."""
 
     classes: np.ndarray
     qpos: np.ndarray
     class_posterior: np.ndarray
+    joint_posterior: np.ndarray
     filter_pos: np.ndarray
     filter_quat: np.ndarray
     n_tracks: np.ndarray
@@ -343,14 +345,15 @@ class Tracker:
     def _record(self, ms: float) -> None:
         evidence = np.array([t.log_evidence for t in self.tracks])
         share = softmax(evidence)
-        post = share @ np.array([t.recognizer.class_posterior for t in self.tracks])
+        joint = np.einsum("j,jck->ck", share, np.array([t.recognizer.posterior for t in self.tracks]))
+        joint /= joint.sum()
         lead = self.tracks[int(np.argmax(evidence))]
         rec = lead.recovered
-        row = (np.concatenate([rec.position, geometry.from_matrix(rec.rotation), rec.angles]), post / post.sum(),
-               lead.estimate[0], lead.estimate[1], len(self.tracks), lead.origin, ms)
+        row = (np.concatenate([rec.position, geometry.from_matrix(rec.rotation), rec.angles]), joint.sum(axis=1),
+               joint, lead.estimate[0], lead.estimate[1], len(self.tracks), lead.origin, ms)
         for given in self._pending:   # frames before the first flows take the first estimate (or their pose)
             first = row[0] if given is None else np.concatenate([given[0], given[1], row[0][7:]])
-            self._rows.append((first,) + row[1:6] + (0.0,))
+            self._rows.append((first,) + row[1:7] + (0.0,))
         self._pending = []
         self._rows.append(row)
 
@@ -358,9 +361,9 @@ class Tracker:
         if not self._rows:
             raise EngineError("no frame had any flow: nothing to estimate")
         for _ in self._pending:
-            self._rows.append(self._rows[-1][:6] + (0.0,))
+            self._rows.append(self._rows[-1][:7] + (0.0,))
         self._pending = []
-        qpos, post, fpos, fquat, n_tracks, leader, ms = (np.array(x) for x in zip(*self._rows))
+        qpos, post, joint, fpos, fquat, n_tracks, leader, ms = (np.array(x) for x in zip(*self._rows))
         n = len(self._rows)
-        return Estimate(self.model.db.classes_.copy(), qpos, post, fpos, fquat, n_tracks, leader, ms,
+        return Estimate(self.model.db.classes_.copy(), qpos, post, joint, fpos, fquat, n_tracks, leader, ms,
                         {k: 1e3 * v / n for k, v in self._timing.items()})
