@@ -1,57 +1,121 @@
-"""Engine speed: ms per frame and its breakdown for 10 primitives, 200 particles, 100 markers, 150 points.
+"""Engine speed: ms per frame and its breakdown per stage, beside a reference engine measured in the same run.
 
-    MUJOCO_GL=egl python benchmarks/engine_speed.py [--classes walk kick ...]
+    MUJOCO_GL=egl python benchmarks/engine_speed.py [--reference COMMIT] [--classes walk kick ...]
 
-Single process; numba's kernel is compiled (and cached) before timing. The target is 30 frames per second
-(33 ms per frame) on one core.
+10 primitives (6 demos each), 200 particles in total, 100 markers, 150 model points, one process. The
+observations and the database are made once with this checkout and written to a temporary directory; the
+engine of this checkout tracks them, then the engine of ``--reference`` (a git commit, checked out into a
+temporary worktree and run in a subprocess on the same files). Machines differ in speed, so the ratio is the
+number to compare; the target is 30 frames per second (33 ms per frame) on one core. Numba kernels are
+compiled (and cached) before timing, for both engines.
 """
 
+from __future__ import annotations
+
 import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
+ROOT = Path(__file__).resolve().parents[1]
+# The last engine before the pose tracks (issue 12): one particle filter, jump proposals, facing-only visibility.
+DEFAULT_REFERENCE = "eccc808"
+
+_REFERENCE_SCRIPT = """
+import json, sys, time
+import numpy as np
 from harness.body import BodyModel
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
-from harness.engine.database import CYCLIC_PRIMITIVES
-from harness.motion.performer import CLASSES, demonstrations
-from harness.scene import CameraSpec, MarkerSpec, ObservationSpec, OccluderSpec, SceneSpec
-from harness.scene.simulate import simulate
+from harness.observation import Observation
+db = MotionDatabase.load(sys.argv[1])
+tracker = Tracker(db, BodyModel.load(), TrackerConfig(particles=int(sys.argv[2]), model_points=int(sys.argv[3])),
+                  rng=np.random.default_rng(1))
+out = []
+for i, path in enumerate(sys.argv[4:]):
+    obs = Observation.load(path)
+    t0 = time.perf_counter()
+    est = tracker.run(obs)
+    if i:        # the first clip compiles the kernels
+        out.append([time.perf_counter() - t0, len(obs)])
+print(json.dumps(out))
+"""
+
+
+def _reference_times(commit: str, db_path: Path, obs_paths: list[Path], particles: int, points: int) -> list:
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = Path(tmp) / "reference"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), commit], check=True,
+                       capture_output=True)
+        try:
+            env = dict(os.environ, PYTHONPATH=str(tree))
+            done = subprocess.run([sys.executable, "-c", _REFERENCE_SCRIPT, str(db_path), str(particles), str(points),
+                                   *map(str, obs_paths)], cwd=tree, env=env, check=True, capture_output=True,
+                                  text=True)
+            return json.loads(done.stdout.strip().splitlines()[-1])
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=True,
+                           capture_output=True)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--classes", nargs="*", default=["walk", "kick", "jumping_jack"])
+    from harness.body import BodyModel
+    from harness.engine import MotionDatabase, Tracker, TrackerConfig
+    from harness.engine.database import CYCLIC_PRIMITIVES
+    from harness.motion.performer import CLASSES, demonstrations
+    from harness.scene import CameraSpec, MarkerSpec, ObservationSpec, OccluderSpec, SceneSpec
+    from harness.scene.simulate import simulate
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--classes", nargs="*", default=["walk", "kick", "jumping_jack", "squat", "wave"])
     ap.add_argument("--particles", type=int, default=200)
     ap.add_argument("--points", type=int, default=150)
+    ap.add_argument("--reference", default=DEFAULT_REFERENCE, help="git commit of the reference engine "
+                                                                   "('none' to skip it)")
     args = ap.parse_args()
     body = BodyModel.load()
     rng = np.random.default_rng(0)
     train = [demonstrations(c, 1, rng, subject=s)[0] for c in CLASSES for s in range(6)]
     db = MotionDatabase(n_states=20, cyclic=CYCLIC_PRIMITIVES).fit(train)
-    t0 = time.perf_counter()
-    tracker = Tracker(db, body, TrackerConfig(particles=args.particles, model_points=args.points),
-                      rng=np.random.default_rng(1))
-    print(f"database transform (once): {1e3 * (time.perf_counter() - t0):.0f} ms for "
-          f"{db.means_.shape[0] * db.means_.shape[1]} states x {args.points} points")
     spec = SceneSpec(MarkerSpec(100, 1), CameraSpec(azimuth=40.0), OccluderSpec(), ObservationSpec(noise_px=1.0))
-    m = demonstrations("walk", 1, rng, subject=500)[0]
-    tracker.run(simulate(m, spec, rng, body)[0])          # warm-up: numba compilation
-    total, frames, parts = 0.0, 0, {}
-    for c in args.classes:
-        m = demonstrations(c, 1, rng, subject=501)[0]
-        obs = simulate(m, spec, rng, body)[0]
-        t1 = time.perf_counter()
-        est = tracker.run(obs)
-        total += time.perf_counter() - t1
-        frames += len(obs)
-        for k, v in est.timing.items():
-            parts[k] = parts.get(k, 0.0) + v * len(obs)
-        print(f"{c:13s} {len(obs)} frames, {obs.counts[1:].mean():.0f} flows/frame: "
-              f"{1e3 * (time.perf_counter() - t1) / len(obs):.1f} ms/frame")
-    ms = 1e3 * total / frames
-    print(f"\nmean {ms:.1f} ms/frame ({1e3 / ms:.0f} fps); breakdown: "
-          + ", ".join(f"{k} {v / frames:.1f} ms" for k, v in parts.items()))
+    clips = [simulate(demonstrations(c, 1, rng, subject=500 + i)[0], spec, rng, body)[0]
+             for i, c in enumerate(["walk"] + args.classes)]                  # the first one warms up
+    with tempfile.TemporaryDirectory() as tmp:
+        db_path = Path(tmp) / "db.npz"
+        db.save(db_path)
+        obs_paths = []
+        for i, obs in enumerate(clips):
+            obs_paths.append(Path(tmp) / f"obs{i}.npz")
+            obs.save(obs_paths[-1])
+        t0 = time.perf_counter()
+        tracker = Tracker(db, body, TrackerConfig(particles=args.particles, model_points=args.points),
+                          rng=np.random.default_rng(1))
+        print(f"database transform (once): {1e3 * (time.perf_counter() - t0):.0f} ms for "
+              f"{db.means_.shape[0] * db.means_.shape[1]} states x {args.points} points")
+        tracker.run(clips[0])
+        total, frames, parts = 0.0, 0, {}
+        for c, obs in zip(args.classes, clips[1:]):
+            t1 = time.perf_counter()
+            est = tracker.run(obs)
+            total += time.perf_counter() - t1
+            frames += len(obs)
+            for k, v in est.timing.items():
+                parts[k] = parts.get(k, 0.0) + v * len(obs)
+            print(f"{c:13s} {len(obs)} frames, {obs.counts[1:].mean():.0f} flows/frame, tracks "
+                  f"{est.n_tracks.max()} -> {est.n_tracks[-1]}: {1e3 * (time.perf_counter() - t1) / len(obs):.1f} ms/frame")
+        ms = 1e3 * total / frames
+        print(f"\nthis engine: {ms:.1f} ms/frame ({1e3 / ms:.0f} fps); per stage: "
+              + ", ".join(f"{k} {v / frames:.1f} ms" for k, v in parts.items()))
+        if args.reference != "none":
+            ref = _reference_times(args.reference, db_path, obs_paths, args.particles, args.points)
+            ref_ms = 1e3 * sum(t for t, _ in ref) / sum(n for _, n in ref)
+            print(f"reference engine ({args.reference}): {ref_ms:.1f} ms/frame ({1e3 / ref_ms:.0f} fps) on the same "
+                  f"clips; this engine takes {ms / ref_ms:.2f}x its time per frame")
 
 
 if __name__ == "__main__":

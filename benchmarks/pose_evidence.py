@@ -23,29 +23,25 @@ from multiprocessing import get_context
 
 import numpy as np
 
-ALTERNATIVES = ("turn+90", "turn180", "turn-90", "twin")
+ALTERNATIVES = ("turn+90", "turn180", "turn-90", "twin", "twin_upright")
 
 
 def _one(job) -> dict:
     run, overrides = job
-    from harness.body import BodyModel
     from harness.engine.model import EngineModel
     from harness.engine.track import turned, twin
     from harness.engine.tracker import path_evidence
     from harness.evaluation import pipeline
-    from harness.scene.simulate import simulate
+    from harness.evaluation.scenario import tracker_config
 
-    body = BodyModel.load()
-    cfg = run.config
-    motion = pipeline.test_motion(run)
-    db = pipeline.database(cfg, motion, run.cache_dir)
-    scene_rng = pipeline._stream(run.seed, "scene")
-    obs, truth = simulate(motion, pipeline.scene_spec(cfg, scene_rng), scene_rng, body)
-    tc = dataclasses.replace(pipeline.tracker_config(cfg), **overrides)
-    model = EngineModel.build(db, body, tc.model_points, tc.model_seed)
+    inputs = pipeline.run_inputs(run)
+    obs, truth = inputs.obs, inputs.truth
+    tc = dataclasses.replace(tracker_config(run.config), **overrides)
+    model = EngineModel.build(inputs.db, inputs.body, tc.model_points, tc.model_seed)
     pos, quat = truth.base_pos_cam, truth.base_quat_cam
     paths = {"truth": quat, "turn+90": turned(quat, np.pi / 2), "turn180": turned(quat, np.pi),
-             "turn-90": turned(quat, -np.pi / 2), "twin": twin(quat)}
+             "turn-90": turned(quat, -np.pi / 2), "twin": twin(quat),
+             "twin_upright": np.array([twin(q[None], g)[0] for q, g in zip(quat, -truth.camera_rot[:, 2, :])])}
     evidence = {name: float(path_evidence(model, tc, obs, pos, q).sum()) for name, q in paths.items()}
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, **evidence}
 

@@ -18,6 +18,7 @@ class TrackerConfig:
     init_distance: tuple[float, float] = (2.0, 8.0)    # prior range of the subject's distance
     init_elevation: tuple[float, float] = (-10.0, 40.0)  # prior range of the camera's pitch (no gravity given)
     init_factor: int = 8                     # the first frame weighs this many times more particles (issue 5)
+    init_keep: float = 0.25                  # ... and re-weighs the best share of them primitive by primitive
     noise_px: float = 1.0                    # assumed pixel noise of flow positions
     outlier_prob: float = 0.05
     weight_iterations: int = 2               # EM steps on the model points' mixture weights (docs/engine.md)
@@ -26,6 +27,8 @@ class TrackerConfig:
     n_eff_recognition: float = 3.0           # ... for the recognition and the evidence (dev seeds)
     start_spread: float = 0.05               # start probability spread over all states
     prune: float = 1e-4                      # states below this times their primitive's best are not scored
+    weigh_classes: int = 3                   # particles are weighed under at most this many primitives ...
+    weigh_class_mass: float = 0.95           # ... the fewest that hold this much of the track's belief
     position_noise: float = 0.15             # m / sqrt(s), process noise of the base position
     rotation_noise: float = 0.3              # rad / sqrt(s), of the base orientation (yaw when gravity is known)
     tilt_noise: float = 0.05                 # rad / sqrt(s), of the tilt when gravity is known
@@ -35,6 +38,7 @@ class TrackerConfig:
     refine_iterations: int = 2               # Gauss-Newton steps per M-step of recovery
     refine_position_std: float = 0.25        # m: least pose freedom recovery has around the filter's estimate
     refine_rotation_std: float = 0.3         # rad: recovery's rotation freedom around the filter's estimate
+    recover_tracks: int = 2                  # tracks (most evidence first) refined by recovery each frame
     em_iterations: int = 3                   # re-assignments of flows to model points in recovery (issue 5)
     guide_fraction: float = 0.1              # share of a track's particles proposed around recovery's pose
     guide_rotation_std: float = 0.05         # rad, spread of those proposals (position: half the cloud's spread)

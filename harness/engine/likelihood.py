@@ -31,94 +31,95 @@ _GATE = 60.0   # squared Mahalanobis distance in position beyond which a point's
 
 
 @numba.njit(cache=True)
-def _densities(flows, pix, pix_icov, flow, flow_icov, log_norm, dens):
-    """``dens[m, p]``: the Gaussian density of flow ``m`` under point ``p`` of one hypothesis (position and
-    velocity), zero beyond the position gate or for an invisible point (``log_norm = -inf``)."""
-    M, P = dens.shape
-    for m in range(M):
-        u, v, du, dv = flows[m, 0], flows[m, 1], flows[m, 2], flows[m, 3]
-        for p in range(P):
-            dens[m, p] = 0.0
-            c = log_norm[p]
-            if c == -np.inf:
-                continue
-            a = u - pix[p, 0]
-            b = v - pix[p, 1]
-            d2 = pix_icov[p, 0] * a * a + 2.0 * pix_icov[p, 1] * a * b + pix_icov[p, 2] * b * b
+def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, rows, cols, vals):
+    """The non-zero Gaussian densities of flows under the points of one hypothesis (position and velocity,
+    the observation noise ``pos_var``/``vel_var`` added to each covariance): ``vals[k]`` for flow ``rows[k]``
+    and point ``cols[k]``; a pair beyond the position gate, or an invisible point, has none. Returns the count.
+    """
+    M = flows.shape[0]
+    P = pix.shape[0]
+    n = 0
+    for p in range(P):
+        if visibility[p] <= 0.0:
+            continue
+        a, b, c = pix_cov[p, 0, 0] + pos_var, pix_cov[p, 0, 1], pix_cov[p, 1, 1] + pos_var
+        det_p = a * c - b * b
+        ia, ib, ic = c / det_p, -b / det_p, a / det_p
+        fa, fb, fc = flow_cov[p, 0, 0] + vel_var, flow_cov[p, 0, 1], flow_cov[p, 1, 1] + vel_var
+        det_f = fa * fc - fb * fb
+        ja, jb, jc = fc / det_f, -fb / det_f, fa / det_f
+        log_norm = -2.0 * np.log(2.0 * np.pi) - 0.5 * (np.log(det_p) + np.log(det_f))
+        u0, v0, du0, dv0 = pix[p, 0], pix[p, 1], flow[p, 0], flow[p, 1]
+        for m in range(M):
+            x = flows[m, 0] - u0
+            y = flows[m, 1] - v0
+            d2 = ia * x * x + 2.0 * ib * x * y + ic * y * y
             if d2 > _GATE:
                 continue
-            a = du - flow[p, 0]
-            b = dv - flow[p, 1]
-            d2 += flow_icov[p, 0] * a * a + 2.0 * flow_icov[p, 1] * a * b + flow_icov[p, 2] * b * b
-            dens[m, p] = np.exp(c - 0.5 * d2)
+            x = flows[m, 2] - du0
+            y = flows[m, 3] - dv0
+            d2 += ja * x * x + 2.0 * jb * x * y + jc * y * y
+            rows[n] = m
+            cols[n] = p
+            vals[n] = np.exp(log_norm - 0.5 * d2)
+            n += 1
+    return n
 
 
 @numba.njit(cache=True)
-def _mixture_weights(dens, prior, p_in, p_out, iterations, smoothing, weight, mass):
-    """The points' mixture weights: ``prior`` (visibility, normalised) adapted by ``iterations`` EM steps to
-    the flows, shrunk towards the prior by ``smoothing`` pseudo-flows. Points that explain no flow (hidden
-    by an obstacle the engine cannot know of) give their mass to the points that do."""
-    M, P = dens.shape
+def _mixture(rows, cols, vals, n, visibility, p_in, p_out, iterations, smoothing, weight, mass, total):
+    """The points' mixture weights and each flow's inlier density ``total[m] = sum_p w_p N_mp``.
+
+    The weights start from the visibility (normalised) and are adapted by ``iterations`` EM steps to the
+    flows, shrunk towards that prior by ``smoothing`` pseudo-flows: points that explain no flow (hidden by an
+    obstacle the engine cannot know of) give their mass to the points that do."""
+    P = len(visibility)
+    norm = 0.0
     for p in range(P):
-        weight[p] = prior[p]
-    for _ in range(iterations):
+        norm += visibility[p]
+    for p in range(P):
+        weight[p] = visibility[p] / norm
+    for it in range(iterations + 1):
+        for m in range(len(total)):
+            total[m] = 0.0
+        for k in range(n):
+            total[rows[k]] += weight[cols[k]] * vals[k]
+        if it == iterations:
+            break
         for p in range(P):
             mass[p] = 0.0
-        for m in range(M):
-            total = 0.0
-            for p in range(P):
-                total += weight[p] * dens[m, p]
-            denom = p_in * total + p_out
-            if denom <= 0.0:
-                continue
-            for p in range(P):
-                mass[p] += p_in * weight[p] * dens[m, p] / denom
-        norm = 0.0
+        for k in range(n):
+            mass[cols[k]] += p_in * weight[cols[k]] * vals[k] / (p_in * total[rows[k]] + p_out)
+        s = 0.0
         for p in range(P):
-            norm += mass[p]
+            s += mass[p]
         for p in range(P):
-            weight[p] = (mass[p] + smoothing * prior[p]) / (norm + smoothing)
+            weight[p] = (mass[p] + smoothing * visibility[p] / norm) / (s + smoothing)
 
 
 @numba.njit(cache=True)
-def _prior(log_norm, visibility, prior):
-    """Visibility-proportional prior weights; returns False when no point is visible."""
-    total = 0.0
-    for p in range(len(prior)):
-        prior[p] = visibility[p] if log_norm[p] > -np.inf else 0.0
-        total += prior[p]
-    if total <= 0.0:
-        return False
-    for p in range(len(prior)):
-        prior[p] /= total
-    return True
-
-
-@numba.njit(cache=True)
-def _flow_loglik_kernel(flows, pix, pix_icov, flow, flow_icov, log_norm, visibility, log_in, log_out,
+def _flow_loglik_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, log_in, log_out,
                         weight_iterations, smoothing):
-    H, P = log_norm.shape
+    H, P = visibility.shape
     M = flows.shape[0]
     out = np.empty((H, M))
-    dens = np.zeros((M, P))
-    weight = np.empty(P)
-    mass = np.empty(P)
-    prior = np.empty(P)
+    rows = np.empty(M * P, dtype=np.int64)
+    cols = np.empty(M * P, dtype=np.int64)
+    vals = np.empty(M * P)
+    weight, mass, total = np.empty(P), np.empty(P), np.empty(M)
     p_in = np.exp(log_in)
     p_out = np.exp(log_out)
     for h in range(H):
-        if not _prior(log_norm[h], visibility[h], prior):
+        if visibility[h].sum() <= 0.0:
             for m in range(M):
                 out[h, m] = log_out
             continue
-        _densities(flows, pix[h], pix_icov[h], flow[h], flow_icov[h], log_norm[h], dens)
-        _mixture_weights(dens, prior, p_in, p_out, weight_iterations, smoothing, weight, mass)
+        n = _densities(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], pos_var, vel_var,
+                       rows, cols, vals)
+        _mixture(rows, cols, vals, n, visibility[h], p_in, p_out, weight_iterations, smoothing, weight, mass, total)
         for m in range(M):
-            total = 0.0
-            for p in range(P):
-                total += weight[p] * dens[m, p]
-            if total > 0.0:
-                inlier = log_in + np.log(total)
+            if total[m] > 0.0:
+                inlier = log_in + np.log(total[m])
                 hi = max(inlier, log_out)
                 out[h, m] = hi + np.log1p(np.exp(min(inlier, log_out) - hi))
             else:
@@ -127,55 +128,39 @@ def _flow_loglik_kernel(flows, pix, pix_icov, flow, flow_icov, log_norm, visibil
 
 
 @numba.njit(cache=True)
-def _responsibilities_kernel(flows, pix, pix_icov, flow, flow_icov, log_norm, visibility, log_in, log_out,
+def _responsibilities_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, log_in, log_out,
                              weight_iterations, smoothing):
-    P = log_norm.shape[0]
+    P = visibility.shape[0]
     M = flows.shape[0]
     resp = np.zeros((M, P))
-    prior = np.empty(P)
-    if not _prior(log_norm, visibility, prior):
+    if visibility.sum() <= 0.0:
         return resp
-    dens = np.zeros((M, P))
-    weight = np.empty(P)
-    mass = np.empty(P)
+    rows = np.empty(M * P, dtype=np.int64)
+    cols = np.empty(M * P, dtype=np.int64)
+    vals = np.empty(M * P)
+    weight, mass, total = np.empty(P), np.empty(P), np.empty(M)
     p_in = np.exp(log_in)
     p_out = np.exp(log_out)
-    _densities(flows, pix, pix_icov, flow, flow_icov, log_norm, dens)
-    _mixture_weights(dens, prior, p_in, p_out, weight_iterations, smoothing, weight, mass)
-    for m in range(M):
-        total = 0.0
-        for p in range(P):
-            total += weight[p] * dens[m, p]
-        denom = p_in * total + p_out
-        for p in range(P):
-            resp[m, p] = p_in * weight[p] * dens[m, p] / denom
+    n = _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, rows, cols, vals)
+    _mixture(rows, cols, vals, n, visibility, p_in, p_out, weight_iterations, smoothing, weight, mass, total)
+    for k in range(n):
+        m, p = rows[k], cols[k]
+        resp[m, p] = p_in * weight[p] * vals[k] / (p_in * total[m] + p_out)
     return resp
-
-
-def _inverse_2x2(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Packed inverses ``(..., 3)`` as ``[a, b, c]`` of ``[[a, b], [b, c]]`` and log-determinants."""
-    a, b, c = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
-    det = a * c - b * b
-    return np.stack([c / det, -b / det, a / det], axis=-1), np.log(det)
 
 
 def _packed(flows: np.ndarray, img: ImageDistributions, noise_px: float, fps: float, width: int, height: int,
             outlier_prob: float, max_flow: float | None) -> tuple:
-    """The kernels' arguments: flows, packed inverse covariances, log normalisers (``-inf`` for invisible
-    points), visibility, and the log inlier and outlier terms."""
+    """The kernels' arguments: flows, the projected distributions, the observation noise's position and
+    velocity variances, and the log inlier and outlier terms."""
     flows = np.ascontiguousarray(flows, dtype=float).reshape(-1, 4)
     if max_flow is None:
         max_flow = 0.25 * max(width, height) * fps   # a quarter of the image per frame
-    eye = np.eye(2)
-    pix_icov, pix_logdet = _inverse_2x2(img.pix_cov + noise_px**2 * eye)
-    flow_icov, flow_logdet = _inverse_2x2(img.flow_cov + 2.0 * (noise_px * fps) ** 2 * eye)
-    log_norm = -2.0 * np.log(2 * np.pi) - 0.5 * (pix_logdet + flow_logdet)
-    log_norm = np.where(img.visibility > 0, log_norm, -np.inf)
     log_out = np.log(outlier_prob) - np.log(width * height) - np.log(np.pi * max_flow**2)
     log_in = np.log1p(-outlier_prob)
-    return (flows, np.ascontiguousarray(img.pix), np.ascontiguousarray(pix_icov), np.ascontiguousarray(img.flow),
-            np.ascontiguousarray(flow_icov), np.ascontiguousarray(log_norm),
-            np.ascontiguousarray(img.visibility, dtype=float), log_in, log_out)
+    return (flows, np.ascontiguousarray(img.pix), np.ascontiguousarray(img.pix_cov), np.ascontiguousarray(img.flow),
+            np.ascontiguousarray(img.flow_cov), np.ascontiguousarray(img.visibility, dtype=float),
+            float(noise_px**2), float(2.0 * (noise_px * fps) ** 2), log_in, log_out)
 
 
 def flow_log_likelihoods(flows: np.ndarray, img: ImageDistributions, noise_px: float, fps: float,
@@ -206,5 +191,5 @@ def responsibilities(flows: np.ndarray, img: ImageDistributions, noise_px: float
     (rows sum to one minus the flow's outlier probability), under the same gate, visibility and adapted
     weights as ``flow_log_likelihoods`` (the same kernel code)."""
     args = _packed(flows, img, noise_px, fps, width, height, outlier_prob, max_flow)
-    return _responsibilities_kernel(args[0], *(a[0] for a in args[1:7]), *args[7:], int(weight_iterations),
+    return _responsibilities_kernel(args[0], *(a[0] for a in args[1:6]), *args[6:], int(weight_iterations),
                                     float(smoothing))

@@ -54,11 +54,13 @@ def twin(quats: np.ndarray, gravity: np.ndarray | None = None) -> np.ndarray:
 @dataclass
 class Recovered:
     """What recovery found for a track in the current frame: angles ``(50,)``, base position ``(3,)`` and
-    rotation ``(3, 3)`` in the camera frame."""
+    rotation ``(3, 3)`` in the camera frame; refined: whether the flows refined them (else the belief's mean
+    angles at the filter's estimate)."""
 
     angles: np.ndarray
     position: np.ndarray
     rotation: np.ndarray
+    refined: bool = True
 
 
 class Track:
@@ -82,10 +84,24 @@ class Track:
     def __repr__(self) -> str:
         return f"Track({self.origin}, evidence {self.log_evidence:.1f})"
 
-    def belief_mixture(self, dists: PointDistributions) -> PointDistributions:
-        """The moment-matched point distributions of the belief over the active states (one 'state')."""
-        active = np.flatnonzero(self.recognizer.active().ravel())
-        return dists.take(active).mixture(self.recognizer.posterior.ravel()[active])
+    def class_mixtures(self, dists: PointDistributions, max_classes: int, mass: float
+                       ) -> tuple[np.ndarray, PointDistributions]:
+        """The belief as a mixture over its most probable primitives (at most ``max_classes``, fewest covering
+        ``mass`` of the class posterior), each primitive moment-matched over its active states: log weights
+        ``(k,)`` (renormalised over the kept primitives) and ``k`` one-state point distributions.
+
+        One moment-matched blob over every primitive is so wide early on that the particles cannot tell depth;
+        a term per primitive keeps the shape of each."""
+        post = self.recognizer.class_posterior
+        order = np.argsort(post)[::-1]
+        k = min(max_classes, int(np.searchsorted(np.cumsum(post[order]), mass)) + 1)
+        keep = order[:k]
+        active = self.recognizer.active()
+        joint = self.recognizer.posterior
+        K = joint.shape[1]
+        parts = [dists.take(c * K + np.flatnonzero(active[c])).mixture(joint[c][active[c]]) for c in keep]
+        w = post[keep] / post[keep].sum()
+        return np.log(w), PointDistributions.concatenate(parts)
 
     def base_velocity(self, dists: PointDistributions) -> tuple[np.ndarray, np.ndarray]:
         """The base velocity the belief predicts (base frame): linear (m/s) and angular (rad/s)."""

@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import softmax
+from scipy.special import logsumexp, softmax
 
 from harness import geometry
 from harness.body.model import BodyModel
@@ -241,10 +241,14 @@ class Tracker:
         cameras = (camera_pitch(rng.uniform(*np.deg2rad(cfg.init_elevation), n_wide)) if self._gravity is None
                    else level_world(self._gravity))
         wide = initial_cloud(self.intr, flows, n_wide, cfg.init_distance, cameras, self.model.body_height, rng)
-        prior = self._new_recognizer().posterior.ravel()
-        img = to_image(self.intr, geometry.to_matrix(wide.quats), wide.positions, self.model.dists.mixture(prior),
-                       camera_motion, occlusion=occlusion(self.model, cfg))
-        wide.reweight(tempered(self._flow_ll(flows, img), cfg.n_eff_filter))
+        # Coarse to fine: every particle under the belief as one moment-matched blob, then the best
+        # `init_keep` of them under a term per primitive (``_class_mixture_log_likelihood``).
+        blob = to_image(self.intr, geometry.to_matrix(wide.quats), wide.positions,
+                        self.model.dists.mixture(self._new_recognizer().posterior.ravel()), camera_motion,
+                        occlusion=occlusion(self.model, cfg))
+        coarse = tempered(self._flow_ll(flows, blob), cfg.n_eff_filter)
+        wide = wide.take(np.argsort(coarse)[::-1][:int(round(cfg.init_keep * n_wide))])
+        wide.reweight(self._class_mixture_log_likelihood(flows, wide, camera_motion))
         _, lead = wide.estimate()
         spawn = [("lead", lead)] + [(f"turn{a:+g}", turned(lead[None], np.deg2rad(a))[0]) for a in cfg.track_turns]
         if cfg.twin_track:
@@ -264,6 +268,23 @@ class Tracker:
                 cloud.quats = geometry.multiply(cloud.quats, np.broadcast_to(rel, cloud.quats.shape))
             self.tracks.append(Track(cloud, self._new_recognizer(), origin))
 
+    def _class_mixture_log_likelihood(self, flows: np.ndarray, cloud: ParticleCloud,
+                                      camera_motion: np.ndarray | None) -> np.ndarray:
+        """``(N,)`` tempered log-likelihood of poses under the prior over primitives, each primitive its own
+        moment-matched belief: ``log sum_c p(c) p(y | x, c)``. One blob for all primitives would be so wide
+        that the first frame could not tell depth; one term per state would cost ``C K`` times more."""
+        C, K = self.model.n_classes, self.model.n_states
+        prior = self._new_recognizer().posterior
+        mixes = PointDistributions.concatenate([self.model.dists.take(np.arange(c * K, (c + 1) * K)).mixture(prior[c])
+                                                for c in range(C)])
+        n = len(cloud)
+        index = np.repeat(np.arange(C), n)
+        rot = geometry.to_matrix(cloud.quats)
+        img = to_image(self.intr, np.tile(rot, (C, 1, 1)), np.tile(cloud.positions, (C, 1)), mixes, camera_motion,
+                       index, occlusion(self.model, self.config))
+        ll = tempered(self._flow_ll(flows, img), self.config.n_eff_filter).reshape(C, n)
+        return logsumexp(ll + np.log(prior.sum(axis=1))[:, None], axis=0)
+
     def _propose(self, camera_motion: np.ndarray | None, pose) -> None:
         cfg, dt = self.config, 1.0 / self.fps
         n_each = cfg.particles // len(self.tracks)
@@ -275,7 +296,7 @@ class Tracker:
                 v, w = track.base_velocity(self.model.dists)
                 guide = guide_std = None
                 rec = track.recovered
-                if rec is not None and cfg.guide_fraction > 0:
+                if rec is not None and rec.refined and cfg.guide_fraction > 0:
                     g_pos, g_quat = motion_mean(rec.position[None], geometry.from_matrix(rec.rotation)[None], v, w,
                                                 dt, camera_motion)
                     guide = (g_pos[0], g_quat[0])
@@ -294,19 +315,34 @@ class Tracker:
         return flow_log_likelihood_matrix(self.config, flows, img, self.fps, self.intr)
 
     def _weigh(self, flows: np.ndarray, camera_motion: np.ndarray | None) -> None:
-        """Every track's particles under its own belief, in one kernel call."""
-        mixes = PointDistributions.concatenate([t.belief_mixture(self.model.dists) for t in self.tracks])
-        sizes = [len(t.cloud) for t in self.tracks]
-        index = np.repeat(np.arange(len(self.tracks)), sizes)
-        pos = np.concatenate([t.cloud.positions for t in self.tracks])
-        quat = np.concatenate([t.cloud.quats for t in self.tracks])
-        img = to_image(self.intr, geometry.to_matrix(quat), pos, mixes, camera_motion, index,
-                       occlusion(self.model, self.config))
-        ll = tempered(self._flow_ll(flows, img), self.config.n_eff_filter)
+        """Every track's particles under its own belief (a mixture over its likely primitives), all tracks and
+        primitives in one kernel call."""
+        cfg = self.config
+        mixtures = [t.class_mixtures(self.model.dists, cfg.weigh_classes, cfg.weigh_class_mass) for t in self.tracks]
+        offsets = np.cumsum([0] + [len(w) for w, _ in mixtures])
+        mixes = PointDistributions.concatenate([m for _, m in mixtures])
+        pose_index, state_index = [], []
+        start = 0
+        for j, track in enumerate(self.tracks):
+            n = len(track.cloud)
+            for c in range(offsets[j], offsets[j + 1]):
+                pose_index.append(np.arange(start, start + n))
+                state_index.append(np.full(n, c))
+            start += n
+        pose_index, state_index = np.concatenate(pose_index), np.concatenate(state_index)
+        pos = np.concatenate([t.cloud.positions for t in self.tracks])[pose_index]
+        quat = np.concatenate([t.cloud.quats for t in self.tracks])[pose_index]
+        img = to_image(self.intr, geometry.to_matrix(quat), pos, mixes, camera_motion, state_index,
+                       occlusion(self.model, cfg))
+        ll = tempered(self._flow_ll(flows, img), cfg.n_eff_filter)
         if self._height is not None:
-            ll = ll + floor_log_prior(mixes.pos[index], quat, pos, -self._gravity, self._height, self.config)
-        for track, part in zip(self.tracks, np.split(ll, np.cumsum(sizes)[:-1])):
-            track.cloud.reweight(part)
+            ll = ll + floor_log_prior(mixes.pos[state_index], quat, pos, -self._gravity, self._height, cfg)
+        at = 0
+        for (log_w, _), track in zip(mixtures, self.tracks):
+            n, k = len(track.cloud), len(log_w)
+            part = ll[at:at + n * k].reshape(k, n)
+            track.cloud.reweight(logsumexp(part + log_w[:, None], axis=0))
+            at += n * k
 
     def _recognise(self, flows: np.ndarray, camera_motion: np.ndarray | None) -> None:
         """Each track's states scored at its pose; the recursion's normaliser is the track's new evidence."""
@@ -316,15 +352,20 @@ class Tracker:
                                                self.fps, pos, quat, camera_motion)
 
     def _recover(self, flows: np.ndarray, camera_motion: np.ndarray | None, fixed: bool) -> None:
+        """Recovery for the ``recover_tracks`` tracks with the most evidence; the others keep their belief's
+        mean angles at their filter estimate this frame (and propose without a guide next frame)."""
         cfg = self.config
-        for track in self.tracks:
+        ranked = sorted(self.tracks, key=lambda t: -t.log_evidence)
+        for rank, track in enumerate(ranked):
             pos, quat = track.estimate
             track.spread = (np.zeros(3) if fixed
                             else np.maximum(track.cloud.spread(), cfg.refine_position_std))
-            angles, pos_r, rot_r = recover(self.model, flows, self.intr, self.fps, track.best_state_belief(), pos,
-                                           geometry.to_matrix(quat), np.maximum(track.spread, 1e-6), cfg,
-                                           camera_motion, fix_pose=fixed, occlusion=occlusion(self.model, cfg))
-            track.recovered = Recovered(angles, pos_r, rot_r)
+            refine = rank < cfg.recover_tracks
+            angles, pos_r, rot_r = recover(self.model, flows if refine else flows[:0], self.intr, self.fps,
+                                           track.best_state_belief(), pos, geometry.to_matrix(quat),
+                                           np.maximum(track.spread, 1e-6), cfg, camera_motion, fix_pose=fixed,
+                                           occlusion=occlusion(self.model, cfg))
+            track.recovered = Recovered(angles, pos_r, rot_r, refined=refine)
 
     def _manage(self) -> None:
         """Drop tracks trailing the best by ``track_prune_nats``; of two tracks that met (orientation within

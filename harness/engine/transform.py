@@ -104,12 +104,16 @@ def state_point_distributions(body: BodyModel, angles: np.ndarray, angle_var: np
     qpos[:, 7:] = angles
     pos, jac = forward_points_and_jacobians(body, qpos, points.body, points.local, frame="base")
     rates = np.atleast_2d(rates)
-    step = _JDOT_STEP / np.maximum(np.abs(rates).max(axis=1, keepdims=True), 1e-12)
-    qpos_hi, qpos_lo = qpos.copy(), qpos.copy()
-    qpos_hi[:, 7:] += step * rates
-    qpos_lo[:, 7:] -= step * rates
-    jdot = (forward_points_and_jacobians(body, qpos_hi, points.body, points.local, frame="base")[1]
-            - forward_points_and_jacobians(body, qpos_lo, points.body, points.local, frame="base")[1]) / (2 * step[:, :, None, None])
+    if np.any(np.asarray(angle_var) > 0):
+        step = _JDOT_STEP / np.maximum(np.abs(rates).max(axis=1, keepdims=True), 1e-12)
+        qpos_hi, qpos_lo = qpos.copy(), qpos.copy()
+        qpos_hi[:, 7:] += step * rates
+        qpos_lo[:, 7:] -= step * rates
+        jdot = (forward_points_and_jacobians(body, qpos_hi, points.body, points.local, frame="base")[1]
+                - forward_points_and_jacobians(body, qpos_lo, points.body, points.local, frame="base")[1]
+                ) / (2 * step[:, :, None, None])
+    else:
+        jdot = np.zeros_like(jac)    # H enters only through H S_theta H^T, which is zero without angle variance
     tip = forward_points(body, qpos, points.body, points.local + points.normal, frame="base")
     normal = tip - pos
 
@@ -160,11 +164,11 @@ def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDi
     """Project body-frame point distributions for ``H`` base poses ``rot (H, 3, 3)``, ``trans (H, 3)``.
 
     Visibility: a point facing away from the camera (outward normal) or behind it is invisible. With
-    ``occlusion = (radius, depth)`` (metres), the body also hides itself: every point ``q`` nearer the camera
-    than point ``p`` by more than ``depth`` covers it with a Gaussian footprint of the surface patch it stands
-    for, ``v_p = prod_q (1 - exp(-d_pq^2 / (2 r_q^2)))``, ``d_pq`` the pixel distance of their means and
-    ``r_q = f_y radius / z_q`` (footprints beyond three radii are ignored). Without it, visibility is the
-    facing test alone.
+    ``occlusion = (radius, depth)`` (metres), the body also hides itself: every camera-facing point ``q``
+    nearer the camera than point ``p`` by more than ``depth`` covers it with the footprint of the surface
+    patch it stands for, ``v_p = prod_q (1 - k(d_pq / (2 r_q)))`` with the compact biweight
+    ``k(x) = (1 - x^2)^2`` (``x < 1``; close to a Gaussian of std ``r_q``), ``d_pq`` the pixel distance of
+    their means and ``r_q = f_y radius / z_q``. Without it, visibility is the facing test alone.
 
     Pairing of poses and the ``S`` states of ``dist``: one pose and ``S`` states, ``H`` poses and one state,
     ``H`` poses and ``H`` states (paired), or ``state_index`` ``(H,)``: pose ``h`` with state
@@ -208,6 +212,9 @@ def _project_kernel(rot, trans, pose_index, state_index, pos, pos_cov, vel, vel_
     X = np.empty(3)
     Xd = np.empty(3)
     depth = np.empty(P)
+    cell = np.empty(P, dtype=np.int64)
+    count = np.empty(4 * P + 1, dtype=np.int64)
+    members = np.empty(P, dtype=np.int64)
     for h in range(H):
         s = state_index[h]
         g = pose_index[h]
@@ -252,25 +259,70 @@ def _project_kernel(rot, trans, pose_index, state_index, pos, pos_cov, vel, vel_
                     flow_cov[h, p, r, c] = sv
                     flow_cov[h, p, c, r] = sv
         if occ_radius > 0.0:
-            _self_occlusion(pix[h], depth, fy * occ_radius, occ_depth, visibility[h])
+            _self_occlusion(pix[h], depth, fy * occ_radius, occ_depth, visibility[h], cell, count, members)
 
 
 @numba.njit(cache=True)
-def _self_occlusion(pix, depth, focal_radius, min_gap, visibility):
-    """Multiply ``visibility`` ``(P,)`` by the Gaussian footprints of the nearer points (see ``to_image``)."""
+def _self_occlusion(pix, depth, focal_radius, min_gap, visibility, cell, count, members):
+    """Multiply ``visibility`` ``(P,)`` by the footprints of the nearer visible points (see ``to_image``).
+
+    Footprints end at two radii, so each point only looks at the grid cells (of the largest footprint's size)
+    around it: the products of the double loop over all pairs, in a fraction of its time. ``cell``,
+    ``count``, ``members``: work arrays of ``P``, ``P + 1`` (at least) and ``P`` integers."""
     P = len(depth)
+    reach = 0.0
+    lo_u, lo_v, hi_u, hi_v = np.inf, np.inf, -np.inf, -np.inf
+    n_front = 0
+    for q in range(P):
+        if visibility[q] > 0.0:
+            n_front += 1
+            reach = max(reach, 2.0 * focal_radius / depth[q])
+            lo_u, hi_u = min(lo_u, pix[q, 0]), max(hi_u, pix[q, 0])
+            lo_v, hi_v = min(lo_v, pix[q, 1]), max(hi_v, pix[q, 1])
+    if n_front < 2:
+        return
+    nu = int((hi_u - lo_u) / reach) + 1
+    nv = int((hi_v - lo_v) / reach) + 1
+    n_cells = nu * nv
+    if n_cells + 1 > len(count):                # a spread-out hypothesis: fall back to one row of cells
+        nu, nv, n_cells = 1, 1, 1
+    for c in range(n_cells + 1):
+        count[c] = 0
+    for q in range(P):
+        cell[q] = -1
+        if visibility[q] > 0.0:
+            c = min(int((pix[q, 0] - lo_u) / reach), nu - 1) * nv + min(int((pix[q, 1] - lo_v) / reach), nv - 1)
+            cell[q] = c
+            count[c + 1] += 1
+    for c in range(n_cells):
+        count[c + 1] += count[c]
+    for q in range(P):
+        c = cell[q]
+        if c >= 0:
+            members[count[c]] = q
+            count[c] += 1
+    for c in range(n_cells - 1, -1, -1):       # count[c] was advanced to the cell's end: shift back
+        count[c + 1] = count[c]
+    count[0] = 0
     for p in range(P):
-        if visibility[p] == 0.0:
+        if cell[p] < 0:
             continue
-        v = 1.0
-        for q in range(P):
-            zq = depth[q]
-            if q == p or zq <= MIN_DEPTH or zq >= depth[p] - min_gap:
-                continue
-            r = focal_radius / zq
-            du = pix[p, 0] - pix[q, 0]
-            dv = pix[p, 1] - pix[q, 1]
-            d2 = du * du + dv * dv
-            if d2 < 9.0 * r * r:
-                v *= 1.0 - np.exp(-0.5 * d2 / (r * r))
+        v = visibility[p]
+        zp = depth[p]
+        cu = cell[p] // nv
+        cv = cell[p] - cu * nv
+        for iu in range(max(cu - 1, 0), min(cu + 2, nu)):
+            for iv in range(max(cv - 1, 0), min(cv + 2, nv)):
+                c = iu * nv + iv
+                for k in range(count[c], count[c + 1]):
+                    q = members[k]
+                    zq = depth[q]
+                    if zq >= zp - min_gap:
+                        continue
+                    reach_q = 2.0 * focal_radius / zq
+                    du = pix[p, 0] - pix[q, 0]
+                    dv = pix[p, 1] - pix[q, 1]
+                    d2 = (du * du + dv * dv) / (reach_q * reach_q)
+                    if d2 < 1.0:
+                        v *= 1.0 - (1.0 - d2) * (1.0 - d2)
         visibility[p] = v
