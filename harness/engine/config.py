@@ -47,6 +47,7 @@ class TrackerConfig:
     self_occlusion: bool = True              # the body hides itself in the likelihood (depth order)
     occlusion_radius: float = 1.0            # footprint of a point's patch, in patch radii
     occlusion_depth: float = 0.08            # m: a point must be this much nearer to cover another
+    smoothing_frames: float = 2.0            # std (frames) of the offline estimate's trajectory smoother
     min_spawn_ess: float = 5.0               # a track starts from the first frame's particles near it if they
                                              # hold this many effective particles, else from the lead's turned
     track_prune_nats: float = 30.0           # a track trailing the best by this much evidence is dropped

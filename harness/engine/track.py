@@ -69,7 +69,7 @@ class Track:
     cloud: its particles (None when the pose is given); recognizer: its belief; origin: how it was spawned
     (``lead``, ``turn+90``, ``turn180``, ``turn-90``, ``twin``, ``given``); log_evidence: tempered nats since
     the first frame with flows; estimate: this frame's filter estimate ``(position, quaternion)``;
-    recovered: this frame's recovery.
+    recovered: this frame's recovery; history: its configurations so far (for the offline estimate).
     """
 
     def __init__(self, cloud: ParticleCloud | None, recognizer: Recognizer, origin: str, log_evidence: float = 0.0):
@@ -80,6 +80,7 @@ class Track:
         self.estimate: tuple[np.ndarray, np.ndarray] | None = None
         self.recovered: Recovered | None = None
         self.spread = np.zeros(3)
+        self.history: list[np.ndarray] = []     # its recovered configuration (57,) at every frame since it started
 
     def __repr__(self) -> str:
         return f"Track({self.origin}, evidence {self.log_evidence:.1f})"

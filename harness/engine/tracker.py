@@ -24,6 +24,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 from scipy.special import logsumexp, softmax
 
 from harness import geometry
@@ -53,7 +54,8 @@ class Estimate:
     the tracks' posteriors over (primitive, state); filter_pos/filter_quat: that track's filter estimate before
     refinement; n_tracks ``(T,)``; leader ``(T,)``: the origin of the leading track;
     ms_per_frame ``(T,)``; timing: mean ms per frame of each stage. Frames before the first flows take the
-    first estimate."""
+    first estimate. smoothed_qpos, smoothed_class_posterior: the offline (hindsight) estimate, for evaluation
+    only: the final winner's whole track smoothed, and the final class posterior at every frame."""
 
     classes: np.ndarray
     qpos: np.ndarray
@@ -65,10 +67,26 @@ class Estimate:
     leader: np.ndarray
     ms_per_frame: np.ndarray
     timing: dict = field(default_factory=dict)
+    smoothed_qpos: np.ndarray | None = None
+    smoothed_class_posterior: np.ndarray | None = None
 
     @property
     def predicted(self) -> str:
         return str(self.classes[int(np.argmax(self.class_posterior[-1]))])
+
+
+def smooth_trajectory(qpos: np.ndarray, sigma_frames: float) -> np.ndarray:
+    """Configurations ``(T, 57)`` smoothed by a Gaussian of ``sigma_frames`` frames: positions and angles
+    component-wise, orientations as sign-aligned quaternions renormalised (a fixed-interval smoother)."""
+    qpos = np.array(qpos, dtype=float)
+    if sigma_frames <= 0 or len(qpos) < 2:
+        return qpos
+    quat = qpos[:, 3:7].copy()
+    flip = np.cumprod(np.where(np.sum(quat[1:] * quat[:-1], axis=1) < 0, -1.0, 1.0))
+    quat[1:] *= flip[:, None]
+    out = gaussian_filter1d(qpos, sigma_frames, axis=0, mode="nearest")
+    out[:, 3:7] = geometry.normalize(gaussian_filter1d(quat, sigma_frames, axis=0, mode="nearest"))
+    return out
 
 
 def floor_log_prior(points: np.ndarray, quats: np.ndarray, positions: np.ndarray, up: np.ndarray,
@@ -81,7 +99,7 @@ def floor_log_prior(points: np.ndarray, quats: np.ndarray, positions: np.ndarray
     below, with ``f = floor_flight``, ``s = floor_std``, ``H = floor_flight_height``.
     """
     rot = geometry.to_matrix(quats)
-    heights = camera_height + np.einsum("i,nij,npj->np", up, rot, points) + positions @ up
+    heights = camera_height + np.einsum("i,nij,npj->np", up, rot, points) + (positions @ up)[:, None]
     h = heights.min(axis=1)
     cfg = config
     log_ground = np.log1p(-cfg.floor_flight) - 0.5 * (h / cfg.floor_std) ** 2 - np.log(np.sqrt(2 * np.pi) * cfg.floor_std)
@@ -388,10 +406,12 @@ class Tracker:
         share = softmax(evidence)
         joint = np.einsum("j,jck->ck", share, np.array([t.recognizer.posterior for t in self.tracks]))
         joint /= joint.sum()
+        for track in self.tracks:
+            rec = track.recovered
+            track.history.append(np.concatenate([rec.position, geometry.from_matrix(rec.rotation), rec.angles]))
         lead = self.tracks[int(np.argmax(evidence))]
-        rec = lead.recovered
-        row = (np.concatenate([rec.position, geometry.from_matrix(rec.rotation), rec.angles]), joint.sum(axis=1),
-               joint, lead.estimate[0], lead.estimate[1], len(self.tracks), lead.origin, ms)
+        row = (lead.history[-1], joint.sum(axis=1), joint, lead.estimate[0], lead.estimate[1], len(self.tracks),
+               lead.origin, ms)
         for given in self._pending:   # frames before the first flows take the first estimate (or their pose)
             first = row[0] if given is None else np.concatenate([given[0], given[1], row[0][7:]])
             self._rows.append((first,) + row[1:7] + (0.0,))
@@ -407,4 +427,18 @@ class Tracker:
         qpos, post, joint, fpos, fquat, n_tracks, leader, ms = (np.array(x) for x in zip(*self._rows))
         n = len(self._rows)
         return Estimate(self.model.db.classes_.copy(), qpos, post, joint, fpos, fquat, n_tracks, leader, ms,
-                        {k: 1e3 * v / n for k, v in self._timing.items()})
+                        {k: 1e3 * v / n for k, v in self._timing.items()}, *self._hindsight(qpos, post))
+
+    def _hindsight(self, causal_qpos: np.ndarray, causal_post: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The offline estimate: the whole trajectory of the track with the most evidence at the end, smoothed
+        over ``smoothing_frames``, and every frame's class posterior the last frame's ``p(c | y_1:T)`` (one
+        primitive per clip)."""
+        lead = max(self.tracks, key=lambda t: t.log_evidence)
+        T = len(causal_qpos)
+        if lead.origin == "given" or len(lead.history) == 0:
+            path = causal_qpos
+        else:
+            path = np.array(lead.history)
+            first = T - len(path)                 # frames before the track's first: its first pose
+            path = np.concatenate([np.repeat(path[:1], first, axis=0), path]) if first > 0 else path[-T:]
+        return smooth_trajectory(path, self.config.smoothing_frames), np.repeat(causal_post[-1:], T, axis=0)

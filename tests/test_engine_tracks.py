@@ -1,0 +1,173 @@
+"""Pose tracks against independent computations: the twin's geometry, a track's evidence against a brute-force
+sum over classes and states, the self-occlusion grid against the pair loop, the camera prior."""
+
+import numpy as np
+import pytest
+
+from engine_fixtures import CLASSES, synthetic_demos, synthetic_observation
+from harness import geometry
+from harness.body import body_origins, sample_surface
+from harness.engine import MotionDatabase, Tracker, TrackerConfig
+from harness.engine.likelihood import flow_log_likelihoods, tempered
+from harness.engine.model import EngineModel
+from harness.engine.particle_filter import camera_pitch, level_world, upright_orientations
+from harness.engine.track import turned, twin
+from harness.engine.tracker import floor_log_prior, occlusion, path_evidence, smooth_trajectory
+from harness.engine.transform import _self_occlusion, patch_std, state_point_distributions, to_image
+from harness.errors import EngineError
+from harness.motion.primitives import _MIRROR_INDEX, _MIRROR_SIGN
+from harness.observation import Observation, ObservationError
+from harness.pinhole import Intrinsics
+
+
+@pytest.fixture(scope="module")
+def trained(body):
+    rng = np.random.default_rng(1)
+    train = [m for c in CLASSES for m in synthetic_demos(body, c, 4, rng)]
+    return MotionDatabase(n_states=6, cyclic=("march", "wave"), n_iter=5).fit(train)
+
+
+def test_the_twin_is_the_depth_reflection_of_the_mirrored_body(body, rng):
+    """S R S_b with the body's left/right mirror: every joint of the mirrored body lands on the depth
+    reflection (through the pelvis plane) of its partner joint, which orthographic projection cannot tell."""
+    angles = body.random_angles(rng, 3, scale=0.4)
+    quat = upright_orientations(rng.uniform(-np.pi, np.pi, 3), camera_pitch(0.3))
+    pos = np.array([[0.3, -0.2, 4.0]] * 3)
+    joints = body_origins(body, body.qpos(angles, base_pos=pos, base_quat=quat))
+    mirrored = body.clip_angles(angles[:, _MIRROR_INDEX] * _MIRROR_SIGN)
+    twin_joints = body_origins(body, body.qpos(mirrored, base_pos=pos, base_quat=twin(quat)))
+    names = [body.model.body(i).name for i in range(1, body.model.nbody)]
+    swapped = [{"l": "r", "r": "l"}.get(n[0], n[0]) + n[1:] for n in names]
+    partner = np.array([names.index(s) if s in names else i for i, s in enumerate(swapped)])
+    assert (partner != np.arange(len(names))).sum() == 18           # nine paired segments a side
+    reflected = joints.copy()
+    reflected[..., 2] = 2 * pos[:, None, 2] - joints[..., 2]
+    np.testing.assert_allclose(twin_joints[:, partner], reflected, atol=1e-9)
+    # With gravity known the twin stays upright: the body's up axis keeps its angle to the vertical.
+    g = -level_world(np.array([0.0, np.cos(0.3), np.sin(0.3)]))[2]
+    up = geometry.rotate(quat, np.array([0.0, 0, 1]))
+    up_twin = geometry.rotate(twin(quat, g), np.array([0.0, 0, 1]))
+    np.testing.assert_allclose(up_twin @ -g, up @ -g, atol=1e-12)
+    # A turn is about the body's own vertical: the up axis does not move.
+    np.testing.assert_allclose(geometry.rotate(turned(quat, 1.1), np.array([0.0, 0, 1])), up, atol=1e-12)
+
+
+def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trained):
+    """Along a given pose path, a track's evidence is log p(y_1:T) of the HMMs with the classes and states
+    summed out: here an explicit forward algorithm over every (class, state), emissions scored state by state."""
+    cfg = TrackerConfig(model_points=40, prune=1e-300, start_spread=0.1)
+    model = EngineModel.build(trained, body, cfg.model_points, cfg.model_seed)
+    m = synthetic_demos(body, "wave", 1, np.random.default_rng(3), seconds=0.4)[0]
+    obs, pos, quat = synthetic_observation(body, m, np.random.default_rng(4))
+    got = path_evidence(model, cfg, obs, pos, quat)
+    C, K = trained.means_.shape[:2]
+    start = ((1 - cfg.start_spread) * trained.startprob_ + cfg.start_spread / K) / C     # (C, K)
+    alpha, total, first = None, [], True
+    for t, flows in enumerate(obs.flows):
+        if len(flows) == 0 and first:
+            total.append(0.0)
+            continue
+        b = np.empty((C, K))
+        for c in range(C):
+            for k in range(K):
+                img = to_image(obs.intrinsics, geometry.to_matrix(quat[t])[None], pos[t][None],
+                               model.dists.take([c * K + k]), occlusion=occlusion(model, cfg))
+                ll = flow_log_likelihoods(flows, img, cfg.noise_px, obs.fps, obs.intrinsics.width,
+                                          obs.intrinsics.height, cfg.outlier_prob,
+                                          weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing)
+                b[c, k] = tempered(ll, cfg.n_eff_recognition)[0]
+        prior = start if first else np.einsum("cj,cjk->ck", alpha, trained.transmat_)
+        joint = prior * np.exp(b)
+        total.append(np.log(joint.sum()))
+        alpha = joint / joint.sum()
+        first = False
+    np.testing.assert_allclose(got, total, rtol=1e-9, atol=1e-9)
+    assert got.sum() < 0 and np.count_nonzero(got) == len(obs) - 1
+
+
+def test_self_occlusion_grid_equals_the_pair_loop(rng):
+    def pairs(pix, depth, focal_radius, gap, vis):
+        out = vis.copy()
+        for p in np.flatnonzero(vis > 0):
+            for q in np.flatnonzero(vis > 0):
+                if q != p and depth[q] < depth[p] - gap:
+                    x2 = np.sum((pix[p] - pix[q]) ** 2) / (2 * focal_radius / depth[q]) ** 2
+                    out[p] *= 1 - (1 - x2) ** 2 if x2 < 1 else 1.0
+        return out
+
+    for spread in (80.0, 300.0, 5000.0):      # compact, body-sized, and scattered over many cells
+        P = 120
+        pix = rng.uniform(0, spread, (P, 2))
+        depth = rng.uniform(3.5, 4.5, P)
+        vis = np.where(rng.random(P) < 0.6, rng.uniform(0.2, 1.0, P), 0.0)
+        got = vis.copy()
+        _self_occlusion(pix, depth, 60.0, 0.08, got, np.empty(P, np.int64), np.empty(4 * P + 1, np.int64),
+                        np.empty(P, np.int64))
+        np.testing.assert_allclose(got, pairs(pix, depth, 60.0, 0.08, vis), rtol=1e-12)
+
+
+def test_a_limb_in_front_hides_what_is_behind_it(body):
+    """A body seen from the side: with self-occlusion the far leg's camera-facing points are mostly hidden by
+    the near leg; the facing test alone keeps them."""
+    points = sample_surface(body, 300, np.random.default_rng(3))
+    dist = state_point_distributions(body, np.zeros(50), np.zeros(50), np.zeros(50), np.zeros(50), np.zeros(3),
+                                     np.zeros(3), np.zeros(3), np.zeros(3), points, patch_std(body, 300))
+    intr = Intrinsics.from_fov(45.0, 640, 480)
+    quat = upright_orientations(np.array([np.pi / 2]), camera_pitch(0.0))     # the body's left side to the camera
+    rot, pos = geometry.to_matrix(quat), np.array([[0.0, 0.0, 4.0]])
+    far_leg = np.isin(points.body, [body.body_id(n) for n in ("rfemur", "rtibia")])
+    facing = to_image(intr, rot, pos, dist).visibility[0]
+    hidden = to_image(intr, rot, pos, dist, occlusion=(2 * patch_std(body, 300), 0.08)).visibility[0]
+    assert facing[far_leg].mean() > 0.3
+    assert hidden[far_leg].mean() < 0.5 * facing[far_leg].mean()
+    near_leg = np.isin(points.body, [body.body_id(n) for n in ("lfemur", "ltibia")])
+    assert hidden[near_leg].sum() > 0.8 * facing[near_leg].sum()     # the near leg stays in view
+
+
+def test_floor_prior_prefers_feet_on_the_floor():
+    points = np.array([[[0.0, 0.0, -0.95], [0.0, 0.0, 0.5]]])          # a foot 0.95 m below the base
+    up = np.array([0.0, -1.0, 0.0])                                     # a level camera: up is -y
+    quat = upright_orientations(np.zeros(3), camera_pitch(0.0))          # the body's z along the camera's -y
+    cfg = TrackerConfig()
+    # Camera 1.5 m above the floor: the base 0.549 m below the camera puts the foot 1 mm above the floor.
+    heights = np.array([[0.0, 0.549, 4.0], [0.0, 0.249, 4.0], [0.0, 0.849, 4.0]])   # on, 0.3 m up, 0.3 m under
+    lp = floor_log_prior(np.repeat(points, 3, axis=0), quat, heights, up, 1.5, cfg)
+    assert lp[0] > lp[1] > lp[2]
+    expect = np.log((1 - cfg.floor_flight) * np.exp(-0.5 * (0.001 / cfg.floor_std) ** 2)
+                    / (np.sqrt(2 * np.pi) * cfg.floor_std) + cfg.floor_flight / cfg.floor_flight_height)
+    assert lp[0] == pytest.approx(expect)
+
+
+def test_a_malformed_camera_prior_is_named(body, trained):
+    m = synthetic_demos(body, "squat", 1, np.random.default_rng(3), seconds=0.3)[0]
+    obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))
+    T = len(obs)
+    good = np.tile([0.0, 1.0, 0.0], (T, 1))
+    cases = [({"gravity": good * 2.0}, "gravity, frame 0: not a unit vector"),
+             ({"gravity": np.where(np.arange(T)[:, None] == 2, np.nan, good)}, "gravity, frame 2: NaN"),
+             ({"gravity": good[:, :2]}, "gravity must have shape"),
+             ({"gravity": good, "camera_height": np.full(T, -1.0)}, "camera_height, frame 0: must be a finite"),
+             ({"camera_height": np.full(T, 1.5)}, "camera_height needs gravity")]
+    tracker = Tracker(trained, body, TrackerConfig(particles=20))
+    for extra, message in cases:
+        bad = Observation(obs.fps, obs.intrinsics, obs.flows, **extra)
+        with pytest.raises(EngineError, match=message):
+            tracker.run(bad)
+        assert issubclass(ObservationError, EngineError)
+    # A well-formed prior is used; a missing one is not an error.
+    est = tracker.run(Observation(obs.fps, obs.intrinsics, obs.flows, gravity=good, camera_height=np.full(T, 1.0)))
+    assert est.qpos.shape == (T, 57)
+
+
+def test_offline_smoothing_keeps_a_steady_trajectory_and_damps_jitter(rng):
+    T = 40
+    q = np.zeros((T, 57))
+    q[:, :3] = np.linspace(0, 1, T)[:, None] * [1.0, 0.0, 0.0] + [0.0, 0.0, 4.0]
+    q[:, 3:7] = geometry.exp(np.outer(np.linspace(0, 0.5, T), [0.0, 0.0, 1.0]))
+    q[:, 3:7] *= np.where(np.arange(T) % 2, -1.0, 1.0)[:, None]         # signs flipped: the same rotations
+    smooth = smooth_trajectory(q, 2.0)
+    np.testing.assert_allclose(smooth[8:-8, :3], q[8:-8, :3], atol=1e-9)          # a straight line stays
+    assert np.all(geometry.angle_between(smooth[8:-8, 3:7], q[8:-8, 3:7]) < 1e-6)
+    noisy = q.copy()
+    noisy[:, 7:] = rng.normal(0, 0.1, (T, 50))
+    assert np.std(smooth_trajectory(noisy, 2.0)[:, 7:]) < 0.5 * np.std(noisy[:, 7:])
