@@ -91,9 +91,10 @@ def _gauss(x, mean, cov):
     return np.exp(-0.5 * d @ np.linalg.solve(cov, d)) / (2 * np.pi * np.sqrt(np.linalg.det(cov)))
 
 
-def _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing):
+def _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing, held):
     """The likelihood's rule written out with Python loops: per-flow log-likelihoods and responsibilities of
-    hypothesis ``h`` (the position gate, visibility-proportional prior weights, EM on the weights)."""
+    hypothesis ``h`` (the position gate, visibility-proportional prior weights, EM on the weights of the points
+    not held; held points share what the others leave in their prior proportions)."""
     vmax = 0.25 * max(W, Hh) * fps
     out_density = eps / (W * Hh * np.pi * vmax**2)
     M, P = len(flows), img.pix.shape[1]
@@ -116,28 +117,34 @@ def _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing):
         return np.array([[(1 - eps) * weight[p] * dens[m, p] / ((1 - eps) * weight @ dens[m] + out_density)
                           for p in range(P)] for m in range(M)])
 
+    hold = held[h]
     for _ in range(iterations):
         r = resp_of(weight)
         weight = (r.sum(axis=0) + smoothing * prior) / (r.sum() + smoothing)
+        if prior[hold].sum() > 0:
+            weight[hold] = (1 - weight[~hold].sum()) * prior[hold] / prior[hold].sum()
     ll = np.array([np.log((1 - eps) * weight @ dens[m] + out_density) for m in range(M)])
     return ll, resp_of(weight)
 
 
-@pytest.mark.parametrize("iterations, smoothing", [(0, 0.0), (2, 10.0), (3, 0.5)])
-def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations, smoothing):
+@pytest.mark.parametrize("iterations, smoothing, share_held", [(0, 0.0, 0.0), (2, 10.0, 0.0), (3, 0.5, 0.0),
+                                                                (2, 10.0, 0.5), (3, 0.5, 1.0)])
+def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations, smoothing, share_held):
     H, P, M = 3, 7, 6
     img = _random_image_distributions(rng, H, P)
+    held = rng.random((H, P)) < share_held
     flows = np.concatenate([img.pix[0, :M] + rng.normal(0, 3, (M, 2)), rng.normal(0, 30, (M, 2))], axis=1)
     flows[-1, :2] = [5000.0, -300.0]                      # far from every point: an outlier
     noise, fps, W, Hh, eps = 1.5, 30.0, 640, 480, 0.05
     got = flow_log_likelihoods(flows, img, noise, fps, W, Hh, eps, weight_iterations=iterations,
-                               smoothing=smoothing)
+                               smoothing=smoothing, held=held)
     for h in range(H):
-        ll, resp = _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing)
+        ll, resp = _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing, held)
         np.testing.assert_allclose(got[h], ll, rtol=1e-9)
         one = ImageDistributions(*(getattr(img, k)[h:h + 1] for k in ("pix", "pix_cov", "flow", "flow_cov",
                                                                         "visibility")))
-        r = responsibilities(flows, one, noise, fps, W, Hh, eps, weight_iterations=iterations, smoothing=smoothing)
+        r = responsibilities(flows, one, noise, fps, W, Hh, eps, weight_iterations=iterations, smoothing=smoothing,
+                             held=held[h:h + 1])
         np.testing.assert_allclose(r, resp, rtol=1e-9, atol=1e-300)
         assert np.all(r[:, img.visibility[h] == 0] == 0)
     # With every point invisible, every flow is an outlier.

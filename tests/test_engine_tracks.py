@@ -10,6 +10,7 @@ from harness.body import body_origins, sample_surface
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
 from harness.engine.likelihood import flow_log_likelihoods, tempered
 from harness.engine.model import EngineModel
+from harness.engine.open_region import OpenRegion
 from harness.engine.particle_filter import camera_pitch, level_world, upright_orientations
 from harness.engine.track import turned, twin
 from harness.engine.tracker import floor_log_prior, occlusion, path_evidence, smooth_trajectory
@@ -62,8 +63,11 @@ def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trai
     got = path_evidence(model, cfg, obs, pos, quat)
     C, K = trained.means_.shape[:2]
     start = ((1 - cfg.start_spread) * trained.startprob_ + cfg.start_spread / K) / C     # (C, K)
+    region = OpenRegion(obs.intrinsics.width, obs.intrinsics.height, cfg.open_cell_px,
+                        int(round(cfg.open_memory_s * obs.fps)))
     alpha, total, first = None, [], True
     for t, flows in enumerate(obs.flows):
+        region.update(flows)
         if len(flows) == 0 and first:
             total.append(0.0)
             continue
@@ -74,7 +78,8 @@ def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trai
                                model.dists.take([c * K + k]), occlusion=occlusion(model, cfg))
                 ll = flow_log_likelihoods(flows, img, cfg.noise_px, obs.fps, obs.intrinsics.width,
                                           obs.intrinsics.height, cfg.outlier_prob,
-                                          weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing)
+                                          weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing,
+                                          held=region.held(img.pix))
                 b[c, k] = tempered(ll, cfg.n_eff_recognition)[0]
         prior = start if first else np.einsum("cj,cjk->ck", alpha, trained.transmat_)
         joint = prior * np.exp(b)

@@ -22,6 +22,9 @@ class TrackerConfig:
     noise_px: float = 1.0                    # assumed pixel noise of flow positions
     outlier_prob: float = 0.05
     weight_iterations: int = 2               # EM steps on the model points' mixture weights (docs/engine.md)
+    open_memory_s: float = 1.0               # s: flows seen this recently mark the region obstacles leave open
+                                             # (negative evidence there; < 0 turns it off)
+    open_cell_px: float = 16.0               # px, the grid of that region
     weight_smoothing: float = 10.0           # pseudo-flows holding those weights towards uniform
     n_eff_filter: float = 4.0                # tempering: a frame counts as at most this many flows (dev seeds)
     n_eff_recognition: float = 3.0           # ... for the recognition and the evidence (dev seeds)

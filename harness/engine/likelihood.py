@@ -67,16 +67,21 @@ def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var
 
 
 @numba.njit(cache=True)
-def _mixture(rows, cols, vals, n, visibility, p_in, p_out, iterations, smoothing, weight, mass, total):
+def _mixture(rows, cols, vals, n, visibility, held, p_in, p_out, iterations, smoothing, weight, mass, total):
     """The points' mixture weights and each flow's inlier density ``total[m] = sum_p w_p N_mp``.
 
     The weights start from the visibility (normalised) and are adapted by ``iterations`` EM steps to the
     flows, shrunk towards that prior by ``smoothing`` pseudo-flows: points that explain no flow (hidden by an
-    obstacle the engine cannot know of) give their mass to the points that do."""
+    obstacle the engine cannot know of) give their mass to the points that do. Points that are ``held`` (they
+    lie where flows have appeared recently, so no obstacle hides them) keep their prior proportions and share
+    what the free points leave: a held point without flows keeps its weight, and the hypothesis pays for it."""
     P = len(visibility)
     norm = 0.0
+    held_prior = 0.0
     for p in range(P):
         norm += visibility[p]
+        if held[p]:
+            held_prior += visibility[p]
     for p in range(P):
         weight[p] = visibility[p] / norm
     for it in range(iterations + 1):
@@ -93,12 +98,19 @@ def _mixture(rows, cols, vals, n, visibility, p_in, p_out, iterations, smoothing
         s = 0.0
         for p in range(P):
             s += mass[p]
+        free = 0.0
         for p in range(P):
-            weight[p] = (mass[p] + smoothing * visibility[p] / norm) / (s + smoothing)
+            if not held[p]:
+                weight[p] = (mass[p] + smoothing * visibility[p] / norm) / (s + smoothing)
+                free += weight[p]
+        if held_prior > 0.0:
+            for p in range(P):
+                if held[p]:
+                    weight[p] = (1.0 - free) * visibility[p] / held_prior
 
 
 @numba.njit(cache=True)
-def _flow_loglik_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, log_in, log_out,
+def _flow_loglik_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in, log_out,
                         weight_iterations, smoothing):
     H, P = visibility.shape
     M = flows.shape[0]
@@ -116,7 +128,8 @@ def _flow_loglik_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var
             continue
         n = _densities(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], pos_var, vel_var,
                        rows, cols, vals)
-        _mixture(rows, cols, vals, n, visibility[h], p_in, p_out, weight_iterations, smoothing, weight, mass, total)
+        _mixture(rows, cols, vals, n, visibility[h], held[h], p_in, p_out, weight_iterations, smoothing, weight, mass,
+                 total)
         for m in range(M):
             if total[m] > 0.0:
                 inlier = log_in + np.log(total[m])
@@ -128,8 +141,8 @@ def _flow_loglik_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var
 
 
 @numba.njit(cache=True)
-def _responsibilities_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, log_in, log_out,
-                             weight_iterations, smoothing):
+def _responsibilities_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in,
+                             log_out, weight_iterations, smoothing):
     P = visibility.shape[0]
     M = flows.shape[0]
     resp = np.zeros((M, P))
@@ -142,7 +155,7 @@ def _responsibilities_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, po
     p_in = np.exp(log_in)
     p_out = np.exp(log_out)
     n = _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, rows, cols, vals)
-    _mixture(rows, cols, vals, n, visibility, p_in, p_out, weight_iterations, smoothing, weight, mass, total)
+    _mixture(rows, cols, vals, n, visibility, held, p_in, p_out, weight_iterations, smoothing, weight, mass, total)
     for k in range(n):
         m, p = rows[k], cols[k]
         resp[m, p] = p_in * weight[p] * vals[k] / (p_in * total[m] + p_out)
@@ -150,9 +163,9 @@ def _responsibilities_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, po
 
 
 def _packed(flows: np.ndarray, img: ImageDistributions, noise_px: float, fps: float, width: int, height: int,
-            outlier_prob: float, max_flow: float | None) -> tuple:
-    """The kernels' arguments: flows, the projected distributions, the observation noise's position and
-    velocity variances, and the log inlier and outlier terms."""
+            outlier_prob: float, max_flow: float | None, held: np.ndarray | None) -> tuple:
+    """The kernels' arguments: flows, the projected distributions, which points are held, the observation
+    noise's position and velocity variances, and the log inlier and outlier terms."""
     flows = np.ascontiguousarray(flows, dtype=float).reshape(-1, 4)
     if max_flow is None:
         max_flow = 0.25 * max(width, height) * fps   # a quarter of the image per frame
@@ -160,18 +173,22 @@ def _packed(flows: np.ndarray, img: ImageDistributions, noise_px: float, fps: fl
     log_in = np.log1p(-outlier_prob)
     return (flows, np.ascontiguousarray(img.pix), np.ascontiguousarray(img.pix_cov), np.ascontiguousarray(img.flow),
             np.ascontiguousarray(img.flow_cov), np.ascontiguousarray(img.visibility, dtype=float),
+            np.zeros(img.visibility.shape, dtype=np.bool_) if held is None
+            else np.ascontiguousarray(np.broadcast_to(held, img.visibility.shape), dtype=np.bool_),
             float(noise_px**2), float(2.0 * (noise_px * fps) ** 2), log_in, log_out)
 
 
 def flow_log_likelihoods(flows: np.ndarray, img: ImageDistributions, noise_px: float, fps: float,
                          width: int, height: int, outlier_prob: float = 0.05, max_flow: float | None = None,
-                         weight_iterations: int = 0, smoothing: float = 0.0) -> np.ndarray:
+                         weight_iterations: int = 0, smoothing: float = 0.0, held: np.ndarray | None = None
+                         ) -> np.ndarray:
     """``(H, M)`` log-likelihood of each flow ``(M, 4)`` under each hypothesis (see the module docstring).
 
     Hypotheses with no visible point explain every flow as an outlier. ``weight_iterations`` EM steps adapt
-    the mixture weights of the model points to the flows (``smoothing``: pseudo-flows spread by visibility).
+    the mixture weights of the model points to the flows (``smoothing``: pseudo-flows spread by visibility),
+    except for ``held`` points ``(H, P)`` bool, whose weights keep their prior proportions.
     """
-    return _flow_loglik_kernel(*_packed(flows, img, noise_px, fps, width, height, outlier_prob, max_flow),
+    return _flow_loglik_kernel(*_packed(flows, img, noise_px, fps, width, height, outlier_prob, max_flow, held),
                                int(weight_iterations), float(smoothing))
 
 
@@ -186,10 +203,11 @@ def tempered(per_flow: np.ndarray, n_eff: float) -> np.ndarray:
 
 def responsibilities(flows: np.ndarray, img: ImageDistributions, noise_px: float, fps: float, width: int,
                      height: int, outlier_prob: float = 0.05, max_flow: float | None = None,
-                     weight_iterations: int = 0, smoothing: float = 0.0) -> np.ndarray:
+                     weight_iterations: int = 0, smoothing: float = 0.0, held: np.ndarray | None = None
+                     ) -> np.ndarray:
     """For one hypothesis: ``(M, P)`` posterior probability that flow ``m`` comes from model point ``p``
     (rows sum to one minus the flow's outlier probability), under the same gate, visibility and adapted
     weights as ``flow_log_likelihoods`` (the same kernel code)."""
-    args = _packed(flows, img, noise_px, fps, width, height, outlier_prob, max_flow)
-    return _responsibilities_kernel(args[0], *(a[0] for a in args[1:6]), *args[6:], int(weight_iterations),
+    args = _packed(flows, img, noise_px, fps, width, height, outlier_prob, max_flow, held)
+    return _responsibilities_kernel(args[0], *(a[0] for a in args[1:7]), *args[7:], int(weight_iterations),
                                     float(smoothing))

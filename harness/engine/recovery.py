@@ -30,6 +30,7 @@ from harness.pinhole import Intrinsics, project, projection_jacobian
 if TYPE_CHECKING:
     from harness.engine.model import EngineModel
     from harness.engine.config import TrackerConfig
+    from harness.engine.open_region import OpenRegion
 
 
 def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows: np.ndarray, resp: np.ndarray,
@@ -91,9 +92,10 @@ def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows:
 def recover(model: "EngineModel", flows: np.ndarray, intr: Intrinsics, fps: float, state_belief: np.ndarray,
             position: np.ndarray, rot: np.ndarray, position_std: np.ndarray, config: "TrackerConfig",
             camera_motion: np.ndarray | None = None, fix_pose: bool = False,
-            occlusion: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            occlusion: tuple[float, float] | None = None, open_region: "OpenRegion | None" = None
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Angles of a recognised primitive and a refined pose, by EM against the flows (``occlusion``: as for
-    ``to_image``).
+    ``to_image``; ``open_region``: as for the likelihood).
 
     ``state_belief`` ``(S,)`` over all database states (zero outside the recognised primitive). The prior is
     the belief's moment-matched Gaussian over the angles; the pose prior is ``position`` ``(3,)``,
@@ -120,7 +122,9 @@ def recover(model: "EngineModel", flows: np.ndarray, intr: Intrinsics, fps: floa
                                             mix.base_linear[0], np.zeros(3), mix.base_angular[0], np.zeros(3),
                                             model.points, model.spread)
         img = to_image(intr, rot_r[None], pos_r[None], mix, camera_motion, occlusion=occlusion)
-        resp = responsibilities(flows, img, config.noise_px, fps, intr.width, intr.height, config.outlier_prob, **kw)
+        held = None if open_region is None else open_region.held(img.pix)
+        resp = responsibilities(flows, img, config.noise_px, fps, intr.width, intr.height, config.outlier_prob,
+                                held=held, **kw)
         angles, pos_r, rot_r = refine_pose(model.body, model.points, intr, flows, resp, theta0, np.sqrt(var),
                                            position, rot, position_std, config.refine_rotation_std,
                                            config.noise_px, model.spread, config.refine_iterations,

@@ -33,6 +33,7 @@ from harness.engine.config import TrackerConfig
 from harness.engine.database import MotionDatabase
 from harness.engine.likelihood import flow_log_likelihoods, tempered
 from harness.engine.model import EngineModel
+from harness.engine.open_region import OpenRegion
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
                                             initial_cloud, level_world, motion_mean, propose, systematic_resample)
 from harness.engine.recognition import Recognizer
@@ -109,11 +110,13 @@ def floor_log_prior(points: np.ndarray, quats: np.ndarray, positions: np.ndarray
 
 
 def flow_log_likelihood_matrix(model_config: TrackerConfig, flows: np.ndarray, img, fps: float,
-                                intr: Intrinsics) -> np.ndarray:
-    """``(H, M)`` per-flow log-likelihoods under projected distributions, with the engine's settings."""
+                                intr: Intrinsics, open_region: OpenRegion | None = None) -> np.ndarray:
+    """``(H, M)`` per-flow log-likelihoods under projected distributions, with the engine's settings; points
+    in ``open_region`` keep their prior weights (negative evidence)."""
     cfg = model_config
+    held = None if open_region is None else open_region.held(img.pix)
     return flow_log_likelihoods(flows, img, cfg.noise_px, fps, intr.width, intr.height, cfg.outlier_prob,
-                                weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing)
+                                weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing, held=held)
 
 
 def occlusion(model: EngineModel, config: TrackerConfig) -> tuple[float, float] | None:
@@ -125,7 +128,7 @@ def occlusion(model: EngineModel, config: TrackerConfig) -> tuple[float, float] 
 
 def recognise_at(model: EngineModel, config: TrackerConfig, recognizer: Recognizer, flows: np.ndarray,
                  intr: Intrinsics, fps: float, position: np.ndarray, quat: np.ndarray,
-                 camera_motion: np.ndarray | None = None) -> float:
+                 camera_motion: np.ndarray | None = None, open_region: OpenRegion | None = None) -> float:
     """One recognition step at a base pose (camera frame): every active state's tempered emission, folded
     into ``recognizer``. Returns the recursion's normaliser (0 for a frame without flows)."""
     if len(flows) == 0:
@@ -134,7 +137,8 @@ def recognise_at(model: EngineModel, config: TrackerConfig, recognizer: Recogniz
     img = to_image(intr, geometry.to_matrix(quat)[None], np.asarray(position)[None], model.dists.take(active),
                    camera_motion, occlusion=occlusion(model, config))
     log_b = np.zeros(recognizer.log_alpha.size)
-    log_b[active] = tempered(flow_log_likelihood_matrix(config, flows, img, fps, intr), config.n_eff_recognition)
+    log_b[active] = tempered(flow_log_likelihood_matrix(config, flows, img, fps, intr, open_region),
+                             config.n_eff_recognition)
     return recognizer.update(log_b.reshape(recognizer.log_alpha.shape))
 
 
@@ -143,17 +147,29 @@ def path_evidence(model: EngineModel, config: TrackerConfig, obs: Observation, p
     """``(T,)`` per-frame evidence ``log p(y_t | y_<t, path)`` of a given base pose path ``(T, 3)``, ``(T, 4)``
     (camera frame): what a track that followed exactly this path would accumulate."""
     rec = Recognizer(model.db, config.start_spread, config.prune)
+    region = open_region(config, obs.intrinsics, obs.fps, obs.camera_motion is not None)
     out = np.zeros(len(obs))
     started = False
     for t, flows in enumerate(obs.flows):
+        if region is not None:
+            region.update(flows)
         if not started and len(flows) == 0:
             continue
         if started:
             rec.predict()
         started = True
         cam = None if obs.camera_motion is None else obs.camera_motion[t]
-        out[t] = recognise_at(model, config, rec, flows, obs.intrinsics, obs.fps, positions[t], quats[t], cam)
+        out[t] = recognise_at(model, config, rec, flows, obs.intrinsics, obs.fps, positions[t], quats[t], cam, region)
     return out
+
+
+def open_region(config: TrackerConfig, intr: Intrinsics, fps: float, camera_moves: bool) -> OpenRegion | None:
+    """The region flows have recently shown (a moving camera remembers only the current frame), or None when
+    negative evidence is off."""
+    if config.open_memory_s < 0:
+        return None
+    memory = 0 if camera_moves else int(round(config.open_memory_s * fps))
+    return OpenRegion(intr.width, intr.height, config.open_cell_px, memory)
 
 
 class Tracker:
@@ -198,6 +214,7 @@ class Tracker:
         self._rng = rng if rng is not None else self.rng
         self._gravity: np.ndarray | None = None
         self._height: float | None = None
+        self._open: OpenRegion | None = None
         self.tracks: list[Track] = []
         self._rows: list[tuple] = []
         self._pending: list = []      # given poses (or None) of frames before the first flows
@@ -212,6 +229,10 @@ class Tracker:
         flows = np.asarray(flows, dtype=float).reshape(-1, 4)
         self._gravity = None if gravity is None else np.asarray(gravity, dtype=float)
         self._height = camera_height
+        if self._open is None:
+            self._open = open_region(self.config, self.intr, self.fps, camera_motion is not None) or False
+        if self._open:
+            self._open.update(flows)
         t0 = time.perf_counter()
         clock = [t0]
 
@@ -330,7 +351,7 @@ class Tracker:
         return ProcessNoise(cfg.position_noise, cfg.rotation_noise, cfg.tilt_noise, -self._gravity)
 
     def _flow_ll(self, flows: np.ndarray, img) -> np.ndarray:
-        return flow_log_likelihood_matrix(self.config, flows, img, self.fps, self.intr)
+        return flow_log_likelihood_matrix(self.config, flows, img, self.fps, self.intr, self._open or None)
 
     def _weigh(self, flows: np.ndarray, camera_motion: np.ndarray | None) -> None:
         """Every track's particles under its own belief (a mixture over its likely primitives), all tracks and
@@ -367,7 +388,7 @@ class Tracker:
         for track in self.tracks:
             pos, quat = track.estimate
             track.log_evidence += recognise_at(self.model, self.config, track.recognizer, flows, self.intr,
-                                               self.fps, pos, quat, camera_motion)
+                                               self.fps, pos, quat, camera_motion, self._open or None)
 
     def _recover(self, flows: np.ndarray, camera_motion: np.ndarray | None, fixed: bool) -> None:
         """Recovery for the ``recover_tracks`` tracks with the most evidence; the others keep their belief's
@@ -382,7 +403,7 @@ class Tracker:
             angles, pos_r, rot_r = recover(self.model, flows if refine else flows[:0], self.intr, self.fps,
                                            track.best_state_belief(), pos, geometry.to_matrix(quat),
                                            np.maximum(track.spread, 1e-6), cfg, camera_motion, fix_pose=fixed,
-                                           occlusion=occlusion(self.model, cfg))
+                                           occlusion=occlusion(self.model, cfg), open_region=self._open or None)
             track.recovered = Recovered(angles, pos_r, rot_r, refined=refine)
 
     def _manage(self) -> None:
