@@ -15,8 +15,9 @@ from harness.motion import Motion
 from harness.motion.performer import (CLASSES, demonstrations, perform, place_base,
                                       subject_style)
 from harness.body import forward_points
-from harness.motion.primitives import (JOINT_NAMES, Take, UnknownPrimitiveError, lookup, mirror, registered,
-                                       smooth_noise, soft_clip)
+from harness.body.model import JOINT_NAMES
+from harness.motion.primitives import (Take, UnknownPrimitiveError, lookup, mirror, registered, smooth_noise,
+                                       soft_clip)
 
 SEEDS = 20
 FPS = 20.0          # a lower frame rate keeps the 200-demo sweep fast; placement does not depend on it

@@ -17,7 +17,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from harness.body.model import BodyModel
+from harness.body.model import NQ, BodyModel
 from harness.body.surface import BOX, CAPSULE, CYLINDER, SPHERE
 
 FRAMES = ("world", "base")
@@ -28,8 +28,8 @@ def _as_batch(qpos: np.ndarray) -> tuple[np.ndarray, bool]:
     qpos = np.asarray(qpos, dtype=float)
     if qpos.ndim == 1:
         return qpos[None], True
-    if qpos.ndim != 2 or qpos.shape[1] != 57:
-        raise ValueError(f"qpos must have shape (57,) or (T, 57), got {qpos.shape}")
+    if qpos.ndim != 2 or qpos.shape[1] != NQ:
+        raise ValueError(f"qpos must have shape ({NQ},) or (T, {NQ}), got {qpos.shape}")
     return qpos, False
 
 

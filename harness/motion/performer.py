@@ -29,10 +29,10 @@ import numpy as np
 
 from harness import geometry
 from harness.body import BodyModel, forward_points, geom_z_range
+from harness.body.model import JOINT_NAMES
 from harness.motion import repertoire  # noqa: F401  (registers the primitives)
 from harness.motion.motion import Motion
-from harness.motion.primitives import (JOINT_NAMES, PerformerError, Plan, Take, lookup, mirror, registered,
-                                      soft_clip)
+from harness.motion.primitives import PerformerError, Plan, Take, lookup, mirror, registered, soft_clip
 
 CLASSES: tuple[str, ...] = ("walk", "run", "jump", "squat", "kick", "punch", "wave", "bow", "throw",
                             "jumping_jack")

@@ -24,20 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from harness.body.model import JOINT_NAMES, N_ANGLES
 from harness.errors import HarnessError
 
-N_ANGLES = 50
-JOINT_NAMES: tuple[str, ...] = (
-    "lowerback_y", "lowerback_x", "lowerback_z", "upperback_y", "upperback_x", "upperback_z",
-    "thorax_y", "thorax_x", "thorax_z", "lowerneck_y", "lowerneck_x", "lowerneck_z",
-    "upperneck_y", "upperneck_x", "upperneck_z", "head_y", "head_x", "head_z",
-    "lclavicle_z", "lclavicle_x", "lhumerus_y", "lhumerus_x", "lhumerus_z", "lradius_y", "lwrist_z",
-    "lhand_y", "lhand_x",
-    "rclavicle_z", "rclavicle_x", "rhumerus_y", "rhumerus_x", "rhumerus_z", "rradius_y", "rwrist_z",
-    "rhand_y", "rhand_x",
-    "lfemur_y", "lfemur_x", "lfemur_z", "ltibia_y", "lfoot_y", "lfoot_x", "ltoes_y",
-    "rfemur_y", "rfemur_x", "rfemur_z", "rtibia_y", "rfoot_y", "rfoot_x", "rtoes_y",
-)
 _INDEX = {name: i for i, name in enumerate(JOINT_NAMES)}
 # Mirror image through the sagittal (x-z) plane: left and right joints swap, and every x (ab/adduction,
 # side bend) and z (twist) angle changes sign; y (flexion) angles keep theirs.
