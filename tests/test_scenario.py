@@ -111,3 +111,35 @@ def test_capture_dir_missing_is_named(monkeypatch):
 def test_procedural_classes_match_the_performer():
     performer = pytest.importorskip("harness.motion.performer", reason="the performer is not on this branch")
     assert tuple(performer.CLASSES) == PROCEDURAL_CLASSES
+
+
+def test_with_captures_needs_a_capture_test_split():
+    with pytest.raises(ScenarioError, match=r"database.with_captures: needs test.split 'captures'"):
+        parse_scenario({"name": "w", "database": {"with_captures": True}}, "w.yaml")
+    s = parse_scenario({"name": "w", "database": {"with_captures": True}, "test": {"split": "captures"}})
+    assert s.database.with_captures
+
+
+def test_with_captures_trains_on_the_other_subjects_captures(tmp_path, monkeypatch):
+    """The mixed database's training set: the procedural demos plus every capture demo whose subject is not
+    the test motion's (two rows of subject 2 and one of subject 9 here)."""
+    import numpy as np
+
+    from harness.evaluation import pipeline
+    from harness.motion import Motion
+
+    directory = require_mocap()
+    for name in ("02_01.amc", "02.asf", "09_01.bvh"):
+        (tmp_path / name).symlink_to(directory / name)
+    (tmp_path / "MANIFEST.csv").write_text(
+        "file,format,skeleton,subject,trial,class,start,end,fps\n02_01.amc,amc,02.asf,2,1,walk,0,41,120\n"
+        "02_01.amc,amc,02.asf,2,1,walk,41,82,120\n09_01.bvh,bvh,,9,1,run,1,41,120\n")
+    s = resolve_capture(parse_scenario({"name": "w", "database": {"with_captures": True, "train_demos": 1,
+                                                                  "classes": ["walk", "run"]},
+                                        "test": {"split": "captures"}}), tmp_path)
+    test = Motion(qpos=np.tile(np.r_[0, 0, 1, 1, 0, 0, 0, np.zeros(50)], (2, 1)), fps=30.0, label="run",
+                  subject="9")
+    monkeypatch.setattr(pipeline, "_MEMO", {})
+    motions = pipeline.training_motions(s, test)
+    assert [(m.source == "procedural", m.label, m.subject) for m in motions] == [
+        (True, "walk", "0"), (True, "run", "0"), (False, "walk", "2"), (False, "walk", "2")]

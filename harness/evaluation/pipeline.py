@@ -75,7 +75,8 @@ def test_motion(run: RunSpec) -> Motion:
 
 
 def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
-    """Procedural: ``train_demos`` per class from the training seed, one subject each (0, 1, ...).
+    """Procedural: ``train_demos`` per class from the training seed, one subject each (0, 1, ...), plus (with
+    ``database.with_captures``) every capture demo of another subject than the test motion's.
     Capture: every manifest demo of the scenario's classes except the test demo (leave_one_out) or except the
     test subject's demos (cross_subject)."""
     db = cfg.database
@@ -92,6 +93,9 @@ def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
     for c in cfg.classes:
         rng = _stream(db.seed, f"train/{c}")
         out += [demonstrations(c, 1, rng, fps=db.fps, subject=s)[0] for s in range(db.train_demos)]
+    if db.with_captures:
+        out += [m for m in _capture_set(cfg)
+                if m.label in cfg.classes and (test is None or m.subject != test.subject)]
     return out
 
 
@@ -102,6 +106,9 @@ def database(cfg: Scenario, test: Motion | None, cache_dir: str | Path) -> Motio
            "cyclic": list(CYCLIC_PRIMITIVES), "format": 1}
     if db.source == "procedural":
         key |= {"train_demos": db.train_demos, "seed": db.seed}
+        if db.with_captures:
+            key |= {"capture_dir": str(db.capture_dir), "manifest": db.manifest,
+                    "with_captures_without_subject": None if test is None else test.subject}
     else:
         key |= {"capture_dir": str(db.capture_dir), "manifest": db.manifest, "split": cfg.test.split,
                 "without": [] if test is None else [test.label, test.demo, test.subject]}
