@@ -110,8 +110,11 @@ def database(cfg: Scenario, test: Motion | None, cache_dir: str | Path) -> Motio
             key |= {"capture_dir": str(db.capture_dir), "manifest": db.manifest,
                     "with_captures_without_subject": None if test is None else test.subject}
     else:
+        # Cross-subject databases depend on the test subject only: one per subject, not one per demo.
+        without = [] if test is None else ([test.subject] if cfg.test.split == "cross_subject"
+                                           else [test.label, test.demo, test.subject])
         key |= {"capture_dir": str(db.capture_dir), "manifest": db.manifest, "split": cfg.test.split,
-                "without": [] if test is None else [test.label, test.demo, test.subject]}
+                "without": without}
     memo = ("db", stable_hash(key))
     if memo not in _MEMO:
         def build():

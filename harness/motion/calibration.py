@@ -66,8 +66,12 @@ NEUTRAL = ClassCalibration(np.zeros(N_ANGLES), np.ones(N_ANGLES))
 
 def save_calibration(path: str | Path, table: dict[str, ClassCalibration], about: dict | None = None) -> None:
     """Write ``table`` (class -> calibration) as JSON, atomically; ``about`` records how it was fitted."""
-    doc = {"about": about or {}, "classes": {c: cal.to_json() for c, cal in table.items()}}
-    write_text_atomic(path, json.dumps(doc, indent=1) + "\n")
+    # One line per array, so that a refit reads as a diff of numbers.
+    classes = ",\n".join(f'  {json.dumps(c)}: {{\n' + ",\n".join(f"    {json.dumps(k)}: {json.dumps(v)}"
+                                                              for k, v in cal.to_json().items()) + "\n  }"
+                         for c, cal in table.items())
+    text = f'{{\n "about": {json.dumps(about or {})},\n "classes": {{\n{classes}\n }}\n}}\n'
+    write_text_atomic(path, text)
 
 
 def read_calibration(path: str | Path) -> dict[str, ClassCalibration]:
