@@ -13,18 +13,19 @@ posture term) over the free unknowns; an angle at a bound whose gradient points 
 (an active set), so that a limb pressed against one limit still moves in its other joints. A step is kept
 only if it lowers ``C`` (``lambda`` shrinks), otherwise ``lambda`` grows and the step is tried again.
 Projected damped least squares without the active set and the acceptance test stalled on the joint
-limits for whole stretches of a clip.
+limits for whole stretches of a clip (frames 20-94 cm off in 35 of the 65 sample rows; docs/captures.md).
 
 **Continuation.** Frame t starts from the solution of frame t - 1.
 
-**Restarts.** Continuation follows whatever branch it is on. When the arm passes the shoulder's Euler
-singularity (humerus y, x, z: the arm straight out to the side, which every jumping jack and many throws
-cross) or a limb swings fast, it can be left in a local minimum: an elbow bent where the source's is
-straight, an arm folded behind the head (whole frames 30-90 cm off before this solver). So when a frame's
-largest residual exceeds ``RESTART_RESIDUAL`` or jumps by more than ``RESTART_JUMP`` over the previous
-frame's, the frame is solved again from seeds and the lowest ``C`` wins: each limb (shoulder or hip
-with its elbow or knee) set analytically from its targets, in each of the two Euler branches of its
-3-hinge joint (``limb_branches``: the flips of the shoulder or hip solution), and the zero pose.
+**Restarts.** Continuation follows whatever branch it is on. After a large jump between frames, or where
+the arm passes the shoulder's Euler singularity (humerus y, x, z: the arm straight out to the side, which
+jumping jacks and throws cross), it can be left in a local minimum: an elbow bent where the source's is
+straight, an arm folded behind the head. So when a frame's largest residual exceeds ``RESTART_RESIDUAL`` or
+jumps by more than ``RESTART_JUMP`` over the previous frame's, the frame is solved again from seeds and the
+lowest ``C`` wins: each limb (shoulder or hip with its elbow or knee) set analytically from its targets, in
+each of the two Euler branches of its 3-hinge joint (``limb_branches``: the flips of the shoulder or hip
+solution), and the zero pose. A residual that no restart improves is the data's (a source bone that no
+human pose follows); later frames restart only when they get worse than it.
 """
 
 from __future__ import annotations
