@@ -122,3 +122,24 @@ def heading(q: np.ndarray) -> np.ndarray:
     """Heading (radians) of a z-up body: the world angle of its forward axis (x) projected on the floor."""
     fwd = rotate(q, np.array([1.0, 0.0, 0.0]))
     return np.arctan2(fwd[..., 1], fwd[..., 0])
+
+
+def central_difference(x: np.ndarray, dt: float) -> np.ndarray:
+    """Time derivative of samples ``(T, ...)`` spaced ``dt`` seconds: central differences inside, one-sided at
+    the ends; zeros for a single sample."""
+    x = np.asarray(x, dtype=float)
+    return np.gradient(x, dt, axis=0, edge_order=1) if len(x) > 1 else np.zeros_like(x)
+
+
+def body_angular_velocity(q: np.ndarray, dt: float) -> np.ndarray:
+    """Angular velocity ``(T, 3)`` (rad/s) in the moving frame of orientations ``q (T, 4)`` (parent from body)
+    sampled every ``dt`` seconds: ``log(q_a^-1 q_b) / (t_b - t_a)`` between the neighbours of each sample
+    (one-sided at the ends), which is exact for a constant rate about a body-fixed axis."""
+    q = np.asarray(q, dtype=float)
+    if len(q) < 2:
+        return np.zeros((len(q), 3))
+    prev = np.concatenate([q[:1], q[:-1]])
+    nxt = np.concatenate([q[1:], q[-1:]])
+    span = np.full(len(q), 2.0 * dt)
+    span[0] = span[-1] = dt
+    return log(multiply(conjugate(prev), nxt)) / span[:, None]

@@ -99,3 +99,58 @@ def test_one_short_row_per_format(tmp_path, body):
         assert 0.8 < m.qpos[:, 2].mean() < 1.1                  # pelvis at standing height, not upside down
         base_up = geometry.rotate(m.base_quat, np.array([0.0, 0.0, 1.0]))
         assert np.all(base_up[:, 2] > 0.8)                      # upright
+
+
+def test_row_quality_statistics_and_worst_frames(tmp_path):
+    """Mean, 95th percentile and maximum over every frame and target, in cm; worst frames by their largest
+    target residual; the limits of issue 14 (3, 8, 15 cm) decide ``within_limits``."""
+    from harness.motion.captures import CaptureRow, row_quality
+    from harness.motion.retarget import RetargetResult
+
+    row = CaptureRow(tmp_path / "M.csv", 7, "x.amc", "amc", "x.asf", "3", "1", "walk", 10, 50, 120.0)
+    residual = np.full((10, 4), 0.01)
+    residual[6, 2], residual[3, 0], residual[8, 1] = 0.20, 0.05, 0.04
+    result = RetargetResult(qpos=np.zeros((10, 57)), fps=30.0, targets=np.zeros((10, 4, 3)), target_bodies=("a",) * 4,
+                            residual=residual, scale=1.0, source_positions=np.zeros((10, 4, 3)))
+    q = row_quality(row, result)
+    flat = np.sort(residual.ravel())
+    assert q["mean_cm"] == pytest.approx(100.0 * flat.mean(), abs=1e-3)
+    # numpy's default percentile: linear between order statistics 37 and 38 of 40 (0.95 * 39 = 37.05).
+    assert q["p95_cm"] == pytest.approx(100.0 * (flat[37] + 0.05 * (flat[38] - flat[37])), abs=1e-3)
+    assert q["max_cm"] == pytest.approx(20.0)
+    assert q["worst_frames"].split()[:3] == ["6", "3", "8"]
+    assert not q["within_limits"] and (q["row"], q["class"], q["frames"]) == (7, "walk", 10)
+    residual[6, 2] = 0.12
+    assert row_quality(row, result)["within_limits"]
+
+
+def test_import_warns_about_rows_beyond_the_limits_and_writes_the_report(tmp_path, monkeypatch, capsys):
+    """A row beyond the limits is imported with a warning that names the row and its worst frames; the
+    report is the per-row table as CSV. (The sample rows are all within issue 14's limits, so the test
+    lowers the maximum to 1 cm.)"""
+    import csv
+
+    from harness import cli
+    from harness.motion import captures
+
+    directory = require_mocap()
+    manifest = _manifest(tmp_path, ["02_01.amc,amc,02.asf,2,1,walk,0,41,120,", "09_01.bvh,bvh,,9,1,run,1,41,120,"])
+    monkeypatch.setitem(captures.RESIDUAL_LIMITS, "max", 0.01)
+    report = tmp_path / "report.csv"
+    code = cli.main(["import-capture", str(directory), "--manifest", str(manifest), "--out", str(tmp_path / "out"),
+                     "--report", str(report)])
+    assert code == 0
+    err = capsys.readouterr().err
+    assert err.count("warning: ") == 2
+    assert "row 2 (02_01.amc [0, 41), walk)" in err and "row 3 (09_01.bvh [1, 41), run)" in err
+    assert "worst frames" in err
+    assert len(list((tmp_path / "out").glob("*.npz"))) == 2
+    with report.open() as fh:
+        table = list(csv.DictReader(fh))
+    assert [r["row"] for r in table] == ["2", "3"] and [r["within_limits"] for r in table] == ["False", "False"]
+    rows = read_manifest(manifest)
+    with pytest.warns(captures.CaptureQualityWarning, match=r"row 2 .* worst frames"):
+        results = captures.retarget_rows(directory, rows[:1], 30.0)
+    expected = captures.row_quality(rows[0], results[0][1])
+    assert float(table[0]["max_cm"]) == pytest.approx(expected["max_cm"])
+    assert table[0]["worst_frames"] == expected["worst_frames"]

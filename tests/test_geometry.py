@@ -95,3 +95,18 @@ def test_intrinsics_match_mujoco_fovy():
 def test_bad_intrinsics(args):
     with pytest.raises(CameraError):
         Intrinsics.from_fov(*args)
+
+
+def test_finite_difference_rates_are_exact_for_constant_motion(rng):
+    """A constant rate about a body-fixed axis, ``q_t = q_0 exp(w t)``, gives ``w`` at every sample
+    (ends included); a linear trajectory gives its slope; one sample gives zeros."""
+    w = rng.normal(size=3)
+    q0 = g.normalize(rng.normal(size=4))
+    t = np.arange(7) / 30.0
+    q = g.multiply(q0, g.exp(t[:, None] * w))
+    np.testing.assert_allclose(g.body_angular_velocity(q, 1.0 / 30.0), np.tile(w, (7, 1)), atol=1e-9)
+    x = t[:, None] * np.array([1.0, -2.0, 0.5]) + 3.0
+    np.testing.assert_allclose(g.central_difference(x, 1.0 / 30.0), np.tile([1.0, -2.0, 0.5], (7, 1)),
+                               atol=1e-9)
+    assert np.array_equal(g.body_angular_velocity(q[:1], 0.1), np.zeros((1, 3)))
+    assert np.array_equal(g.central_difference(x[:1], 0.1), np.zeros((1, 3)))

@@ -16,8 +16,9 @@ from harness.motion import Motion
 from harness.motion.performer import (CLASSES, demonstrations, perform, place_base,
                                       subject_style)
 from harness.body import forward_points
-from harness.motion.primitives import (JOINT_NAMES, Take, UnknownPrimitiveError, lookup, mirror, registered,
-                                       smooth_noise, soft_clip)
+from harness.body.model import JOINT_NAMES
+from harness.motion.primitives import (Take, UnknownPrimitiveError, lookup, mirror, registered, smooth_noise,
+                                       soft_clip)
 
 SEEDS = 20
 FPS = 20.0          # a lower frame rate keeps the 200-demo sweep fast; placement does not depend on it
@@ -208,7 +209,9 @@ def test_base_trajectories_match_the_action(body, sweep):
             mujoco.mj_kinematics(body.model, body.data)
             up = body.data.xmat[thorax].reshape(3, 3)[:, 2]
             tilt.append(np.degrees(np.arctan2(up[0], up[2])))      # > 0: leaning forward (+x)
-        assert abs(tilt[0]) < 20.0 and max(tilt) > tilt[0] + 35.0
+        # A bend from a stance at most halfway down (the calibrated bow starts from the captured subject's
+        # forward lean: CMU 13's bows start at 9-31 deg and bottom out at 79-92 deg), at least 35 deg deep.
+        assert abs(tilt[0]) < 45.0 and max(tilt) > tilt[0] + 35.0
 
 
 def test_place_base_keeps_a_standing_pose_still(body):

@@ -5,7 +5,8 @@ import pytest
 
 from harness import geometry
 from harness.body import body_origins, forward_points
-from harness.motion.retarget import RetargetError, retarget, solve_ik, y_up_to_z_up
+from harness.motion.ik import solve_ik
+from harness.motion.retarget import RetargetError, retarget, y_up_to_z_up
 from harness.motion.skeletons import SkeletonMappingError
 
 

@@ -32,7 +32,7 @@ def _error(raw) -> str:
     ({"name": "x", "sweep": {"markers.count": 10}}, "s.yaml: sweep['markers.count']: must be a list"),
     ({"name": "x", "engine": {"init_distance": [5, 2]}}, "s.yaml: engine.init_distance: must be [near, far]"),
     ({"name": "x", "test": {"split": "all"}}, "s.yaml: test.split: 'all' does not fit database.source"),
-    ({"name": "x", "methods": ["full", "best"]}, "s.yaml: methods[1]: unknown method 'best' (valid: full, gt_base"),
+    ({"name": "x", "methods": ["full", "best"]}, "s.yaml: methods[1]: unknown method 'best' (valid: full, full_smoothed, gt_base"),
     ({"seed": 3}, "s.yaml: name: required key is missing"),
 ])
 def test_errors_name_the_key_and_what_was_expected(raw, expected):
@@ -45,7 +45,7 @@ def test_a_five_line_scenario_gets_the_documented_defaults():
     assert s.database.fps == 30.0 and s.test.demos_per_class == 2 and s.test.split == "heldout"
     assert (s.engine.particles, s.engine.model_points, s.engine.model_seed, s.engine.init_distance) == \
         (200, 150, 7, (2.0, 8.0))
-    assert s.methods == ("full", "gt_base", "no_database", "joint_space")
+    assert s.methods == ("full", "full_smoothed", "gt_base", "no_database", "joint_space")
 
 
 def test_conditions_are_the_cartesian_product_last_key_fastest():
@@ -161,3 +161,35 @@ def test_the_code_version_is_part_of_the_hash(monkeypatch):
     before = scenario_hash(s)
     monkeypatch.setattr(sc, "code_version", lambda: "0.1.0+other")
     assert scenario_hash(s) != before
+
+
+def test_with_captures_needs_a_capture_test_split():
+    with pytest.raises(ScenarioError, match=r"database.with_captures: needs test.split 'captures'"):
+        parse_scenario({"name": "w", "database": {"with_captures": True}}, "w.yaml")
+    s = parse_scenario({"name": "w", "database": {"with_captures": True}, "test": {"split": "captures"}})
+    assert s.database.with_captures
+
+
+def test_with_captures_trains_on_the_other_subjects_captures(tmp_path, monkeypatch):
+    """The mixed database's training set: the procedural demos plus every capture demo whose subject is not
+    the test motion's (two rows of subject 2 and one of subject 9 here)."""
+    import numpy as np
+
+    from harness.evaluation import pipeline
+    from harness.motion import Motion
+
+    directory = require_mocap()
+    for name in ("02_01.amc", "02.asf", "09_01.bvh"):
+        (tmp_path / name).symlink_to(directory / name)
+    (tmp_path / "MANIFEST.csv").write_text(
+        "file,format,skeleton,subject,trial,class,start,end,fps\n02_01.amc,amc,02.asf,2,1,walk,0,41,120\n"
+        "02_01.amc,amc,02.asf,2,1,walk,41,82,120\n09_01.bvh,bvh,,9,1,run,1,41,120\n")
+    s = resolve_capture(parse_scenario({"name": "w", "database": {"with_captures": True, "train_demos": 1,
+                                                                  "classes": ["walk", "run"]},
+                                        "test": {"split": "captures"}}), tmp_path)
+    test = Motion(qpos=np.tile(np.r_[0, 0, 1, 1, 0, 0, 0, np.zeros(50)], (2, 1)), fps=30.0, label="run",
+                  subject="9")
+    pipeline.clear_caches()
+    motions = pipeline.training_motions(s, test)
+    assert [(m.source == "procedural", m.label, m.subject) for m in motions] == [
+        (True, "walk", "0"), (True, "run", "0"), (False, "walk", "2"), (False, "walk", "2")]

@@ -1,5 +1,6 @@
 """The humanoid56 body model and its kinematics (arrays in, arrays out)."""
 
+from harness.body.kinematics import body_frames
 from harness.body.kinematics import body_origins
 from harness.body.kinematics import forward_points
 from harness.body.kinematics import forward_points_and_jacobians
@@ -14,6 +15,6 @@ from harness.body.surface import SurfacePoints
 from harness.body.surface import sample_surface
 
 __all__ = [
-    "BodyModel", "DEFAULT_MODEL_PATH", "N_ANGLES", "SurfacePoints", "body_origins", "forward_points",
+    "BodyModel", "DEFAULT_MODEL_PATH", "N_ANGLES", "SurfacePoints", "body_frames", "body_origins", "forward_points",
     "forward_points_and_jacobians", "geom_z_range", "load_mjmodel", "point_jacobians", "point_velocities", "sample_surface",
 ]

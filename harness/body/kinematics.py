@@ -126,6 +126,14 @@ def point_velocities(body: BodyModel, qpos: np.ndarray, angle_rates: np.ndarray,
     return vel[0] if single else vel
 
 
+def body_frames(body: BodyModel, qpos: np.ndarray, frame: str = "world") -> tuple[np.ndarray, np.ndarray]:
+    """Origins ``(nbody, 3)`` (metres) and orientations ``(nbody, 3, 3)`` (frame from body) of every body,
+    the world body included (index 0), for one configuration ``(57,)``."""
+    _check_frame(frame)
+    _pose(body, np.asarray(qpos, dtype=float), frame, with_com=False)
+    return body.data.xpos.copy(), body.data.xmat.reshape(-1, 3, 3).copy()
+
+
 def body_origins(body: BodyModel, qpos: np.ndarray, frame: str = "world") -> np.ndarray:
     """Origins of every non-world body (the joint centres): ``(T, nbody - 1, 3)``; index 0 is the root."""
     ids = np.arange(1, body.model.nbody)

@@ -16,7 +16,20 @@ import numpy as np
 from harness.errors import ModelError, UnknownNameError
 
 DEFAULT_MODEL_PATH = Path(__file__).resolve().parents[2] / "models" / "humanoid56.xml"
-N_ANGLES = 50
+#: The 50 hinges of humanoid56 in model order (``docs/humanoid56.md``); ``BodyModel.joint_names`` reads them
+#: from the compiled model (tests check the two agree).
+JOINT_NAMES: tuple[str, ...] = (
+    "lowerback_y", "lowerback_x", "lowerback_z", "upperback_y", "upperback_x", "upperback_z",
+    "thorax_y", "thorax_x", "thorax_z", "lowerneck_y", "lowerneck_x", "lowerneck_z",
+    "upperneck_y", "upperneck_x", "upperneck_z", "head_y", "head_x", "head_z",
+    "lclavicle_z", "lclavicle_x", "lhumerus_y", "lhumerus_x", "lhumerus_z", "lradius_y", "lwrist_z",
+    "lhand_y", "lhand_x",
+    "rclavicle_z", "rclavicle_x", "rhumerus_y", "rhumerus_x", "rhumerus_z", "rradius_y", "rwrist_z",
+    "rhand_y", "rhand_x",
+    "lfemur_y", "lfemur_x", "lfemur_z", "ltibia_y", "lfoot_y", "lfoot_x", "ltoes_y",
+    "rfemur_y", "rfemur_x", "rfemur_z", "rtibia_y", "rfoot_y", "rfoot_x", "rtoes_y",
+)
+N_ANGLES = len(JOINT_NAMES)
 NQ = 7 + N_ANGLES
 NV = 6 + N_ANGLES
 

@@ -75,8 +75,9 @@ def test_motion(run: RunSpec) -> Motion:
 
 
 def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
-    """Procedural: ``performer.training_set``. Capture: every manifest demo of the scenario's classes except
-    the test demo (leave_one_out) or except the test subject's demos (cross_subject)."""
+    """Procedural: ``performer.training_set``, plus (with ``database.with_captures``) every capture demo of
+    another subject than the test motion's. Capture: every manifest demo of the scenario's classes except the
+    test demo (leave_one_out) or except the test subject's demos (cross_subject)."""
     db = cfg.database
     if db.source == "capture":
         motions = [m for m in _captures(cfg)[1] if m.label in cfg.classes]
@@ -85,7 +86,11 @@ def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
         elif test is not None and cfg.test.split == "cross_subject":
             motions = [m for m in motions if m.subject != test.subject]
         return motions
-    return training_set(cfg.classes, db.train_demos, db.seed, db.fps, body=nominal_body())
+    out = training_set(cfg.classes, db.train_demos, db.seed, db.fps, body=nominal_body())
+    if db.with_captures:
+        out += [m for m in _captures(cfg)[1]
+                if m.label in cfg.classes and (test is None or m.subject != test.subject)]
+    return out
 
 
 def database_key(cfg: Scenario, test: Motion | None) -> dict:
@@ -95,9 +100,15 @@ def database_key(cfg: Scenario, test: Motion | None) -> dict:
            "cyclic": list(CYCLIC_PRIMITIVES), "format": DATABASE_FORMAT, "code": code_version()}
     if db.source == "procedural":
         key |= {"train_demos": db.train_demos, "seed": db.seed}
+        if db.with_captures:
+            key |= {"capture_dir": str(db.capture_dir), "manifest": db.manifest,
+                    "with_captures_without_subject": None if test is None else test.subject}
     else:
+        # Cross-subject databases depend on the test subject only: one per subject, not one per demo.
+        without = [] if test is None else ([test.subject] if cfg.test.split == "cross_subject"
+                                           else [test.label, test.demo, test.subject])
         key |= {"capture_dir": str(db.capture_dir), "manifest": db.manifest, "split": cfg.test.split,
-                "without": [] if test is None else [test.label, test.demo, test.subject]}
+                "without": without}
     return key
 
 

@@ -69,6 +69,8 @@ class DatabaseConfig(_Section):
     states: int = Field(20, ge=2, le=500)   # HMM states per primitive
     seed: int = Field(0, ge=0)              # training seed (demo generation and HMM initialisation)
     fps: float = Field(30.0, gt=0, le=1000)  # frames per second of training and test motions
+    with_captures: bool = False             # procedural, test.split captures: also train on the capture demos
+                                            # of every subject but the test motion's
 
     @model_validator(mode="after")
     def _check_classes(self):
@@ -236,6 +238,9 @@ class Scenario(_Section):
                              f"{self.database.source!r} (valid: {valid})")
         if not self.methods:
             raise ValueError("methods: empty list")
+        if self.database.with_captures and self.test.split != "captures":
+            raise ValueError("database.with_captures: needs test.split 'captures' (a procedural database tested "
+                             "on captures)")
         return self
 
     @property

@@ -82,6 +82,12 @@ class AsfSkeleton:
     def index(self, name: str) -> int:
         return self.names.index(name)
 
+    @property
+    def leaves(self) -> tuple[int, ...]:
+        """Indices of the bones without children (their ends are extra points of the forward kinematics)."""
+        parents = set(self.parents.tolist())
+        return tuple(i for i in range(1, len(self.names)) if i not in parents)
+
 
 @dataclass(frozen=True)
 class AmcMotion:
@@ -230,7 +236,7 @@ def load_amc(path: str | Path, skeleton: AsfSkeleton) -> AmcMotion:
     frame_lines: list[int] = []
     seen: set[str] = set()
 
-    def close_frame(line_of_next: int | None) -> None:
+    def close_frame() -> None:
         missing = [n for n in expected if n not in seen]
         if missing:
             where = frame_lines[-1]
@@ -242,7 +248,7 @@ def load_amc(path: str | Path, skeleton: AsfSkeleton) -> AmcMotion:
             continue
         if len(tok) == 1 and tok[0].isdigit():
             if numbers:
-                close_frame(line)
+                close_frame()
             numbers.append(int(tok[0]))
             frame_lines.append(line)
             seen = set()
@@ -262,7 +268,7 @@ def load_amc(path: str | Path, skeleton: AsfSkeleton) -> AmcMotion:
         rows[name].append(_floats(path, line, tok[1:], f"bone {name!r}"))
     if not numbers:
         raise AsfAmcError(f"{path}: no frames")
-    close_frame(None)
+    close_frame()
     values = {n: np.array(v).reshape(len(numbers), expected[n]) for n, v in rows.items()}
     return AmcMotion(values=values, frame_numbers=np.array(numbers), path=path, lines=np.array(frame_lines))
 
@@ -270,14 +276,7 @@ def load_amc(path: str | Path, skeleton: AsfSkeleton) -> AmcMotion:
 def joint_names(skeleton: AsfSkeleton) -> tuple[str, ...]:
     """Names of the points :func:`asf_forward_kinematics` returns: the root, each bone's start (named by the
     bone) and each leaf bone's end (``<bone>_end``)."""
-    leaves = [n for i, n in enumerate(skeleton.names) if i > 0 and i not in set(skeleton.parents)]
-    return skeleton.names + tuple(f"{n}_end" for n in leaves)
-
-
-def joint_parents(skeleton: AsfSkeleton) -> np.ndarray:
-    """Parent index of every point of :func:`joint_names` (a bone's start hangs off its parent's start)."""
-    leaves = [i for i in range(1, len(skeleton.names)) if i not in set(skeleton.parents)]
-    return np.concatenate([skeleton.parents, leaves]).astype(int)
+    return skeleton.names + tuple(f"{skeleton.names[i]}_end" for i in skeleton.leaves)
 
 
 def asf_forward_kinematics(skeleton: AsfSkeleton, motion: AmcMotion, start: int = 0,
@@ -313,6 +312,5 @@ def asf_forward_kinematics(skeleton: AsfSkeleton, motion: AmcMotion, start: int 
         world[b] = world[p] @ c[b] @ m @ c_inv[b]
         start_pos[b] = end_pos[p]
         end_pos[b] = start_pos[b] + world[b] @ (skeleton.lengths[b] * skeleton.directions[b])
-    leaves = [i for i in range(1, len(skeleton.names)) if i not in set(skeleton.parents)]
-    points = np.concatenate([start_pos, end_pos[leaves]], axis=0)
+    points = np.concatenate([start_pos, end_pos[list(skeleton.leaves)]], axis=0)
     return np.transpose(points, (1, 0, 2))

@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
@@ -19,7 +20,7 @@ import numpy as np
 
 from harness.body import BodyModel
 from harness.errors import HarnessError
-from harness.io import read_text
+from harness.io import read_text, write_text_atomic
 from harness.motion.asf_amc import asf_forward_kinematics, joint_names, load_amc, load_asf
 from harness.motion.bvh import CMU_BVH_UNIT_M, load_bvh
 from harness.motion.motion import Motion
@@ -28,10 +29,23 @@ from harness.motion.retarget import RetargetResult, retarget
 MANIFEST_NAME = "MANIFEST.csv"
 REQUIRED_COLUMNS = ("file", "format", "skeleton", "subject", "trial", "class", "start", "end", "fps")
 FORMATS = ("bvh", "amc")
+#: Issue 14's limits on a row's scale-normalised residual over every frame and target (metres): mean,
+#: 95th percentile, maximum. A row beyond them is imported with a ``CaptureQualityWarning``.
+RESIDUAL_LIMITS = {"mean": 0.03, "p95": 0.08, "max": 0.15}
+#: How many of a row's worst frames a quality table and a warning name.
+WORST_FRAMES = 5
 
 
 class CaptureSetError(HarnessError):
     """A manifest or capture that cannot be turned into motions; names the file, row and column."""
+
+
+class RangeError(CaptureSetError):
+    """A frame range beyond the frames of its capture file."""
+
+
+class CaptureQualityWarning(UserWarning):
+    """A row imported with a retargeting residual beyond ``RESIDUAL_LIMITS``; names the row and frames."""
 
 
 @dataclass(frozen=True)
@@ -150,45 +164,62 @@ def demos_by_class(rows: list[CaptureRow]) -> dict[str, list[int]]:
     return out
 
 
-class _SourceCache:
-    """Parsed files of one capture set, so that a take cut into many rows is read once."""
+def file_positions(path: str | Path, skeleton: str | Path | None = None, start: int = 0, end: int | None = None,
+                   fps: float | None = None, files: dict | None = None, fmt: str | None = None
+                   ) -> tuple[np.ndarray, tuple[str, ...], float, float]:
+    """Source joint positions of frames ``[start, end)`` of one capture file, ``(T, J, 3)`` in file units,
+    with the joint names, the frame rate and the metres per file unit.
 
-    def __init__(self, directory: Path):
-        self.directory = directory
-        self.files: dict[tuple[str, str], object] = {}
+    ``fmt`` (``"bvh"`` or ``"amc"``, default: the file's suffix): for BVH the frame rate is the file's; for
+    AMC ``skeleton`` is its ASF file and ``fps`` its rate (AMC files carry none). ``files``, when given, keeps
+    parsed files by path so that a take cut into many rows is read once. Raises ``CaptureSetError`` for
+    another format, an AMC without skeleton or fps, or a range beyond the file.
+    """
+    path = Path(path)
+    files = {} if files is None else files
+    fmt = fmt or path.suffix.lower().lstrip(".")
+    if fmt == "bvh":
+        if path not in files:
+            files[path] = load_bvh(path)
+        clip = files[path]
+        _check_range(path, start, end, clip.n_frames)
+        return clip.positions(start, end), clip.names, clip.fps, CMU_BVH_UNIT_M
+    if fmt != "amc":
+        raise CaptureSetError(f"{path}: capture files must be .bvh or .amc")
+    if skeleton is None or fps is None:
+        raise CaptureSetError(f"{path}: an .amc file needs its ASF skeleton and its frame rate")
+    skeleton = Path(skeleton)
+    if skeleton not in files:
+        files[skeleton] = load_asf(skeleton)
+    asf = files[skeleton]
+    if (path, skeleton) not in files:
+        files[(path, skeleton)] = load_amc(path, asf)
+    amc = files[(path, skeleton)]
+    _check_range(path, start, end, amc.n_frames)
+    return asf_forward_kinematics(asf, amc, start, end), joint_names(asf), float(fps), asf.unit_m
 
-    def _path(self, row: CaptureRow, name: str, column: str) -> Path:
-        path = self.directory / name
-        if not path.is_file():
-            raise CaptureSetError(f"{row.where(column)}: no such file {path}")
-        return path
 
-    def positions(self, row: CaptureRow) -> tuple[np.ndarray, tuple[str, ...], float, float]:
-        """Source joint positions ``(end - start, J, 3)`` in file units, joint names, fps, metres per unit."""
-        if row.format == "bvh":
-            key = ("bvh", row.file)
-            if key not in self.files:
-                self.files[key] = load_bvh(self._path(row, row.file, "file"))
-            clip = self.files[key]
-            self._check_range(row, clip.n_frames)
-            return clip.positions(row.start, row.end), clip.names, clip.fps, CMU_BVH_UNIT_M
-        skey = ("asf", row.skeleton)
-        if skey not in self.files:
-            self.files[skey] = load_asf(self._path(row, row.skeleton, "skeleton"))
-        skeleton = self.files[skey]
-        key = ("amc", row.file, row.skeleton)
-        if key not in self.files:
-            self.files[key] = load_amc(self._path(row, row.file, "file"), skeleton)
-        amc = self.files[key]
-        self._check_range(row, amc.n_frames)
-        return (asf_forward_kinematics(skeleton, amc, row.start, row.end), joint_names(skeleton), row.fps,
-                skeleton.unit_m)
+def _check_range(path: Path, start: int, end: int | None, n_frames: int) -> None:
+    stop = n_frames if end is None else end
+    if not 0 <= start < stop <= n_frames:
+        raise RangeError(f"frame range [{start}, {stop}) goes beyond the {n_frames} frames of {path.name}")
 
-    @staticmethod
-    def _check_range(row: CaptureRow, n_frames: int) -> None:
-        if row.end > n_frames:
-            raise CaptureSetError(f"{row.where('end')}: frame range [{row.start}, {row.end}) goes beyond the "
-                                  f"{n_frames} frames of {row.file}")
+
+def _row_positions(directory: Path, row: CaptureRow, files: dict
+                   ) -> tuple[np.ndarray, tuple[str, ...], float, float]:
+    """``file_positions`` of a manifest row, with errors that name the row and column."""
+    path = directory / row.file
+    if not path.is_file():
+        raise CaptureSetError(f"{row.where('file')}: no such file {path}")
+    skeleton = None
+    if row.format == "amc":
+        skeleton = directory / row.skeleton
+        if not skeleton.is_file():
+            raise CaptureSetError(f"{row.where('skeleton')}: no such file {skeleton}")
+    try:
+        return file_positions(path, skeleton, row.start, row.end, row.fps, files, row.format)
+    except RangeError as exc:
+        raise CaptureSetError(f"{row.where('end')}: {exc}") from None
 
 
 def retarget_rows(directory: str | Path, rows: list[CaptureRow], fps: float = 30.0,
@@ -196,16 +227,54 @@ def retarget_rows(directory: str | Path, rows: list[CaptureRow], fps: float = 30
                   ) -> list[tuple[Motion, RetargetResult]]:
     """Retarget each manifest row; returns the labelled motion and the retargeting details per row."""
     body = body or BodyModel.load()
-    cache = _SourceCache(Path(directory))
+    directory = Path(directory)
+    files: dict = {}
     out = []
     for row in rows:
-        positions, names, src_fps, unit_m = cache.positions(row)
+        positions, names, src_fps, unit_m = _row_positions(directory, row, files)
         result = retarget(positions, names, src_fps, unit_m=unit_m, up="y", fps_out=fps, mapping=mapping,
                           body=body, where=f"{row.where('file')} ({row.file})")
         motion = Motion(qpos=result.qpos, fps=result.fps, label=row.label, subject=row.subject, demo=row.demo,
                         source=row.source)
+        quality = row_quality(row, result)
+        if not quality["within_limits"]:
+            warnings.warn(CaptureQualityWarning(
+                f"{row.manifest}: row {row.line} ({row.file} [{row.start}, {row.end}), {row.label}): retargeting "
+                f"residual mean {quality['mean_cm']:.1f} cm, p95 {quality['p95_cm']:.1f} cm, max "
+                f"{quality['max_cm']:.1f} cm beyond the limits (3, 8, 15 cm); worst frames "
+                f"{quality['worst_frames']} (at {result.fps:g} fps)"), stacklevel=2)
         out.append((motion, result))
     return out
+
+
+def row_quality(row: CaptureRow, result: RetargetResult) -> dict:
+    """One row of the retargeting quality table: the row, its residual statistics over every frame and target
+    (cm), whether they are within ``RESIDUAL_LIMITS`` and the ``WORST_FRAMES`` frames with the largest
+    residual (frame indices of the retargeted motion, worst first, space-separated)."""
+    res = np.asarray(result.residual)
+    stats = {"mean": float(res.mean()), "p95": float(np.percentile(res, 95)), "max": float(res.max())}
+    worst = np.argsort(-res.max(axis=1), kind="stable")[:WORST_FRAMES]
+    return {"row": row.line, "file": row.file, "start": row.start, "end": row.end, "class": row.label,
+            "subject": row.subject, "frames": len(res), "fps": result.fps,
+            **{f"{k}_cm": round(100.0 * v, 3) for k, v in stats.items()},
+            "within_limits": all(stats[k] <= RESIDUAL_LIMITS[k] for k in RESIDUAL_LIMITS),
+            "worst_frames": " ".join(str(int(t)) for t in worst)}
+
+
+def quality_table(rows: list[CaptureRow], results: list[tuple[Motion, RetargetResult]]) -> list[dict]:
+    """``row_quality`` of every retargeted row."""
+    return [row_quality(row, result) for row, (_, result) in zip(rows, results)]
+
+
+def write_quality_csv(path: str | Path, table: list[dict]) -> None:
+    """Write a quality table (``quality_table``) as CSV with a header row, atomically."""
+    if not table:
+        raise CaptureSetError(f"{path}: no rows to write")
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(table[0]), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(table)
+    write_text_atomic(path, buf.getvalue())
 
 
 def load_capture_set(directory: str | Path, manifest: str | Path | None = None, fps: float = 30.0,

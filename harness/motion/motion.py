@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from harness import geometry
+from harness.body.model import NQ
 from harness.errors import HarnessError
 from harness.io import save_npz_atomic
 
@@ -58,8 +59,8 @@ class Motion:
 
     def __post_init__(self):
         qpos = np.array(self.qpos, dtype=float)
-        if qpos.ndim != 2 or qpos.shape[1] != 57:
-            raise MotionError(f"motion {self.label!r}: qpos must be (T, 57), got {qpos.shape}")
+        if qpos.ndim != 2 or qpos.shape[1] != NQ:
+            raise MotionError(f"motion {self.label!r}: qpos must be (T, {NQ}), got {qpos.shape}")
         if len(qpos) < 2:
             raise MotionError(f"motion {self.label!r}: needs at least 2 frames, got {len(qpos)}")
         if not np.isfinite(qpos).all():
@@ -154,20 +155,10 @@ class Motion:
             raise MotionError(f"{path}: not a motion file ({exc})") from None
 
 
-def _central_difference(x: np.ndarray, dt: float) -> np.ndarray:
-    return np.gradient(x, dt, axis=0, edge_order=1)
-
-
 def _velocities(qpos: np.ndarray, fps: float) -> MotionVelocities:
     dt = 1.0 / fps
     quat = qpos[:, 3:7]
-    angles = _central_difference(qpos[:, 7:], dt)
-    lin_world = _central_difference(qpos[:, :3], dt)
-    # Body-frame angular velocity: log(q_a^-1 q_b) / (time between a and b), central inside.
-    prev = np.concatenate([quat[:1], quat[:-1]])
-    nxt = np.concatenate([quat[1:], quat[-1:]])
-    span = np.full(len(quat), 2.0 * dt)
-    span[0] = span[-1] = dt
-    ang = geometry.log(geometry.multiply(geometry.conjugate(prev), nxt)) / span[:, None]
+    lin_world = geometry.central_difference(qpos[:, :3], dt)
     lin_base = geometry.rotate(geometry.conjugate(quat), lin_world)
-    return MotionVelocities(angles, lin_world, lin_base, ang)
+    return MotionVelocities(geometry.central_difference(qpos[:, 7:], dt), lin_world, lin_base,
+                            geometry.body_angular_velocity(quat, dt))

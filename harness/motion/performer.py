@@ -8,7 +8,10 @@ demonstration-to-demonstration variability, and returns humanoid56 ``Motion``s:
 - **per take**: tempo and amplitude factors (together about +-15 %), random phase, random rest lengths,
   and smooth noise on every angle and on the base orientation (white noise low-passed by a Gaussian of
   ``NOISE_SMOOTHING_S`` seconds);
-- **left-sided subjects** (``LEFT_SIDED_FRACTION``) perform the mirror image (left kick, left punch...);
+- **left-sided performances**: a subject whose laterality is below the primitive's left share performs the
+  mirror image (left kick, left punch...);
+- **class calibration** (``harness.motion.calibration``): per primitive, a posture, movement gains, an extent
+  (timing) and a left share fitted on real captures;
 - angles are soft-clipped into the joint ranges (identity inside, tanh saturation in the outer
   ``primitives.CLIP_MARGIN`` of each range), so no angle ever leaves its range.
 
@@ -29,11 +32,12 @@ import numpy as np
 
 from harness import geometry
 from harness.body import BodyModel, forward_points, geom_z_range
+from harness.body.model import JOINT_NAMES
 from harness.motion import repertoire  # noqa: F401  (registers the primitives)
+from harness.motion.calibration import NEUTRAL, ClassCalibration, default_calibration
 from harness.motion.motion import Motion
+from harness.motion.primitives import PerformerError, Plan, Take, lookup, mirror, registered, soft_clip
 from harness.streams import named_stream
-from harness.motion.primitives import (JOINT_NAMES, PerformerError, Plan, Take, lookup, mirror, registered,
-                                      soft_clip)
 
 CLASSES: tuple[str, ...] = ("walk", "run", "jump", "squat", "kick", "punch", "wave", "bow", "throw",
                             "jumping_jack")
@@ -46,7 +50,7 @@ AMP_SPREAD = 0.10               # per take, uniform +-, multiplies amplitudes
 SUBJECT_SPREAD = 0.05           # per subject, log-normal sigma of the tempo and amplitude biases
 NOISE_GAIN = 2.0                # multiplies the per-joint smooth-noise levels of _NOISE_DEG
 POSTURE_GAIN = 2.0              # multiplies the subject posture offsets
-LEFT_SIDED_FRACTION = 0.2       # share of subjects who kick, punch, throw and wave with the left side
+CARRIAGE_RANGE = (0.25, 1.75)   # per subject, uniform factor on a primitive's calibrated class posture
 _STYLE_SEED = 0x5EB1EC7         # fixed: a subject id always gives the same style
 _FOOT_GEOMS = ("lfoot", "ltoes", "rfoot", "rtoes")
 
@@ -75,8 +79,11 @@ class SubjectStyle:
     """A performer's fixed manner: tempo and amplitude biases and posture offsets.
 
     tempo, amplitude: multiplicative biases (about 1). posture: ``(50,)`` degrees added to every frame
-    (model sign convention). pitch: degrees of extra forward pelvis tilt. left_sided: performs one-sided
-    primitives (kick, punch, throw, wave) with the left side, as a mirror image.
+    (model sign convention). pitch: degrees of extra forward pelvis tilt. laterality: uniform in [0, 1);
+    the subject performs a primitive with the left side, as a mirror image, when it is below the
+    primitive's left share (``calibration.ClassCalibration.left``; ``calibration.DEFAULT_LEFT`` by default).
+    carriage: how strongly the subject adopts a primitive's calibrated class posture of the joints (a factor;
+    the class's base lean is taken as calibrated).
     """
 
     subject: int
@@ -84,7 +91,8 @@ class SubjectStyle:
     amplitude: float
     posture: np.ndarray
     pitch: float
-    left_sided: bool = False
+    laterality: float = 1.0
+    carriage: float = 1.0
 
 
 def subject_style(subject: int) -> SubjectStyle:
@@ -106,8 +114,9 @@ def subject_style(subject: int) -> SubjectStyle:
     k.both("radius_y", -abs(g.normal(0.0, 6.0)))         # elbows a little bent
     k.both("femur_x", g.normal(1.0, 2.0))                 # stance width
     k.both("femur_z", g.normal(4.0, 4.0))                 # toe-out
-    return SubjectStyle(int(subject), tempo, amplitude, POSTURE_GAIN * k.angles[0].copy(),
-                        float(g.normal(0.0, 2.0)), bool(g.uniform() < LEFT_SIDED_FRACTION))
+    pitch, laterality = float(g.normal(0.0, 2.0)), float(g.uniform())
+    return SubjectStyle(int(subject), tempo, amplitude, POSTURE_GAIN * k.angles[0].copy(), pitch, laterality,
+                        float(g.uniform(*CARRIAGE_RANGE)))
 
 
 @lru_cache(maxsize=1)
@@ -192,26 +201,32 @@ def place_base(body: BodyModel, angles: np.ndarray, quat: np.ndarray, flight: np
 
 
 def perform(label: str, rng: np.random.Generator, fps: float = 30.0, subject: int | None = None,
-            body: BodyModel | None = None, demo: str = "0") -> tuple[Motion, np.ndarray]:
+            body: BodyModel | None = None, demo: str = "0", calibration: ClassCalibration | None = None
+            ) -> tuple[Motion, np.ndarray]:
     """One demonstration of ``label`` (see ``demonstrations``) and its airborne frames ``(T,)`` bool.
 
     The airborne mask says which frames the primitive planned off the ground (both feet in the air); in all
     other frames the lowest foot point is on the floor. Useful as contact labels and for checks.
+    ``calibration``: the class's calibration (default: the shipped table's, ``calibration.NEUTRAL`` for a
+    class it lacks); ``NEUTRAL`` plays the primitive as written.
     """
     fn = lookup(label)
     if not (np.isfinite(fps) and fps > 0):
         raise PerformerError(f"fps must be positive, got {fps}")
     body = _default_body() if body is None else body
+    cal = default_calibration().get(label, NEUTRAL) if calibration is None else calibration
     if subject is None:
         subject = int(rng.integers(0, 1000))
     style = subject_style(subject)
     tempo = style.tempo * rng.uniform(1.0 - TEMPO_SPREAD, 1.0 + TEMPO_SPREAD)
     amp = style.amplitude * rng.uniform(1.0 - AMP_SPREAD, 1.0 + AMP_SPREAD)
-    take = Take(fps, tempo, amp, rng, posture=style.posture, pitch=style.pitch, noise=_NOISE_SCALE_DEG,
-                base_noise=_BASE_NOISE_DEG, smoothing_s=NOISE_SMOOTHING_S,
-                limits=(np.rad2deg(body.lower), np.rad2deg(body.upper)))
+    take = Take(fps, tempo, amp, rng, posture=style.posture + style.carriage * cal.posture,
+                pitch=style.pitch + cal.lean[0],
+                noise=_NOISE_SCALE_DEG, base_noise=_BASE_NOISE_DEG, smoothing_s=NOISE_SMOOTHING_S,
+                limits=(np.rad2deg(body.lower), np.rad2deg(body.upper)), gain=cal.gain, extent=cal.extent,
+                roll=cal.lean[1], lean_gain=tuple(cal.lean_gain))
     plan: Plan = fn(take)
-    if style.left_sided:
+    if style.laterality < cal.left:
         plan = mirror(plan)
     angles = soft_clip(np.deg2rad(plan.angles), body.lower, body.upper)
     ypr = np.deg2rad(np.column_stack([plan.yaw, plan.pitch, plan.roll]))
@@ -223,17 +238,47 @@ def perform(label: str, rng: np.random.Generator, fps: float = 30.0, subject: in
     return motion, plan.flight.copy()
 
 
+#: Farthest (m) a take's base may get from its start, horizontally: walks and runs stay in a camera's view.
+TRAVEL_LIMIT = 3.3
+WALK_SPEED_LIMIT = 1.9            # m/s, a brisk walk
+FLOOR_TOLERANCE = 0.01            # m, how far below the floor a body part other than the feet may dip
+
+
+def guarantee_violations(motion: Motion, body: BodyModel | None = None, margin: float = 0.0,
+                         clearance: float = 0.0) -> list[str]:
+    """What a take breaks of the performer's guarantees beyond joint limits and grounded feet (which hold by
+    construction): no body part more than ``FLOOR_TOLERANCE`` below the floor, the base within
+    ``TRAVEL_LIMIT`` of its start, a walk no faster than ``WALK_SPEED_LIMIT``. ``margin`` tightens the
+    travel and speed bounds by that fraction, ``clearance`` (m) the floor bound of every part but the feet.
+    Empty when all hold; the calibration fit (``harness.motion.realism``) keeps its tables within them."""
+    body = _default_body() if body is None else body
+    out = []
+    lows = geom_z_range(body, motion.qpos)[:, :, 0].min(axis=0)
+    feet = np.isin(body.body_geoms, [mujoco.mj_name2id(body.model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in _FOOT_GEOMS])
+    low = float(lows.min())
+    if low < -FLOOR_TOLERANCE or lows[~feet].min() < -FLOOR_TOLERANCE + clearance:
+        out.append(f"a body part {-100 * min(low, lows[~feet].min()):.1f} cm below the floor")
+    travel = float(np.linalg.norm(motion.base_pos[:, :2] - motion.base_pos[0, :2], axis=1).max())
+    if travel > TRAVEL_LIMIT * (1.0 - margin):
+        out.append(f"travels {travel:.2f} m")
+    if motion.label == "walk" and (speed := travel / motion.duration) > WALK_SPEED_LIMIT * (1.0 - margin):
+        out.append(f"walks at {speed:.2f} m/s")
+    return out
+
+
 def demonstrations(label: str, n: int, rng: np.random.Generator, fps: float = 30.0,
-                   subject: int | None = None, body: BodyModel | None = None) -> list[Motion]:
+                   subject: int | None = None, body: BodyModel | None = None,
+                   calibration: ClassCalibration | None = None) -> list[Motion]:
     """``n`` demonstrations of the primitive ``label`` (one of ``CLASSES``), as ``Motion``s at ``fps``.
 
     Each is drawn from ``rng`` in turn (same generator state, bit-identical output). ``subject`` fixes the
     performer's style; ``None`` draws a subject id in [0, 1000) per demonstration. Demo ids are "0".."n-1".
+    ``calibration``: see ``perform``.
     """
     lookup(label)
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
         raise PerformerError(f"number of demonstrations must be a non-negative integer, got {n!r}")
-    return [perform(label, rng, fps, subject, body, demo=str(i))[0] for i in range(n)]
+    return [perform(label, rng, fps, subject, body, demo=str(i), calibration=calibration)[0] for i in range(n)]
 
 
 if set(CLASSES) != set(registered()):      # a primitive added to the repertoire must be named here too

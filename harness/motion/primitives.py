@@ -24,20 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from harness.body.model import JOINT_NAMES, N_ANGLES
 from harness.errors import HarnessError
 
-N_ANGLES = 50
-JOINT_NAMES: tuple[str, ...] = (
-    "lowerback_y", "lowerback_x", "lowerback_z", "upperback_y", "upperback_x", "upperback_z",
-    "thorax_y", "thorax_x", "thorax_z", "lowerneck_y", "lowerneck_x", "lowerneck_z",
-    "upperneck_y", "upperneck_x", "upperneck_z", "head_y", "head_x", "head_z",
-    "lclavicle_z", "lclavicle_x", "lhumerus_y", "lhumerus_x", "lhumerus_z", "lradius_y", "lwrist_z",
-    "lhand_y", "lhand_x",
-    "rclavicle_z", "rclavicle_x", "rhumerus_y", "rhumerus_x", "rhumerus_z", "rradius_y", "rwrist_z",
-    "rhand_y", "rhand_x",
-    "lfemur_y", "lfemur_x", "lfemur_z", "ltibia_y", "lfoot_y", "lfoot_x", "ltoes_y",
-    "rfemur_y", "rfemur_x", "rfemur_z", "rtibia_y", "rfoot_y", "rfoot_x", "rtoes_y",
-)
 _INDEX = {name: i for i, name in enumerate(JOINT_NAMES)}
 # Mirror image through the sagittal (x-z) plane: left and right joints swap, and every x (ab/adduction,
 # side bend) and z (twist) angle changes sign; y (flexion) angles keep theirs.
@@ -80,14 +69,26 @@ class Take:
     fps: frames per second. tempo: multiplies every duration (> 1 is slower). amp: multiplies movement
     amplitudes. rng: this take's generator (durations, phases). A primitive first draws its timeline and
     calls ``begin(duration)``, which sets ``t`` (``(T,)`` seconds) and zeroes the trajectories.
+
+    The class calibration (``harness.motion.calibration``) enters through ``gain`` ``(50,)``, which
+    multiplies every movement a primitive writes into a joint (``add``, ``lr`` and what calls them; not the
+    ankle that ``flat_feet`` solves for), ``lean_gain`` (pitch, roll), which multiplies what ``lean`` adds
+    to the base's tilt, ``extent``, which multiplies the durations of ``span`` and the number of cycles of
+    ``cycles`` (not the period of a cyclic primitive), and the class posture, which is part of ``posture``,
+    ``pitch`` and ``roll``.
     """
 
     def __init__(self, fps: float, tempo: float, amp: float, rng: np.random.Generator,
                  posture: np.ndarray | None = None, pitch: float = 0.0, noise: np.ndarray | None = None,
                  base_noise: np.ndarray | None = None, smoothing_s: float = 0.2,
-                 limits: tuple[np.ndarray, np.ndarray] | None = None):
+                 limits: tuple[np.ndarray, np.ndarray] | None = None, gain: np.ndarray | None = None,
+                 extent: float = 1.0, roll: float = 0.0, lean_gain: tuple[float, float] = (1.0, 1.0)):
         self.fps, self.tempo, self.amp, self.rng = fps, tempo, amp, rng
         self.limits = limits
+        self.gain = np.ones(N_ANGLES) if gain is None else np.asarray(gain, dtype=float)
+        self.extent = extent
+        self.posture_roll = roll
+        self.lean_gain = lean_gain
         self.posture = np.zeros(N_ANGLES) if posture is None else np.asarray(posture, dtype=float)
         self.posture_pitch = pitch
         self.noise = np.zeros(N_ANGLES) if noise is None else np.asarray(noise, dtype=float)
@@ -106,13 +107,20 @@ class Take:
         self.t = np.arange(n) / self.fps
         self.angles = self.posture + smooth_noise(self.rng, n, self.noise, self.fps, self.smoothing_s)
         ypr = smooth_noise(self.rng, n, self.base_noise, self.fps, self.smoothing_s)
-        self.yaw, self.pitch, self.roll = ypr[:, 0], ypr[:, 1] + self.posture_pitch, ypr[:, 2]
+        self.yaw, self.pitch, self.roll = ypr[:, 0], ypr[:, 1] + self.posture_pitch, ypr[:, 2] + self.posture_roll
         self.flight = np.zeros(n, dtype=bool)
         return self.t
 
     def add(self, joint: str, deg) -> None:
-        """Add degrees to one joint (model sign convention)."""
-        self.angles[:, _INDEX[joint]] += deg
+        """Add degrees to one joint (model sign convention), times its gain."""
+        i = _INDEX[joint]
+        self.angles[:, i] += self.gain[i] * np.asarray(deg)
+
+    def lean(self, pitch=0.0, roll=0.0) -> None:
+        """Add degrees to the base's pitch (> 0 tips the pelvis forward) and roll (> 0 lowers its right
+        side), times their gains (``lean_gain``)."""
+        self.pitch = self.pitch + self.lean_gain[0] * np.asarray(pitch)
+        self.roll = self.roll + self.lean_gain[1] * np.asarray(roll)
 
     def lr(self, joint: str, left=0.0, right=0.0) -> None:
         """Add anatomical degrees to a joint of both sides (``joint`` without the l/r prefix).
@@ -121,8 +129,8 @@ class Take:
         value means the same anatomical movement on both sides.
         """
         sign = -1.0 if joint.endswith(("_x", "_z")) else 1.0
-        self.angles[:, _INDEX["l" + joint]] += left
-        self.angles[:, _INDEX["r" + joint]] += sign * np.asarray(right)
+        self.add("l" + joint, left)
+        self.add("r" + joint, sign * np.asarray(right))
 
     def both(self, joint: str, deg) -> None:
         self.lr(joint, deg, deg)
@@ -157,8 +165,20 @@ class Take:
     # --- time shapes ---------------------------------------------------------------------------
 
     def span(self, lo: float, hi: float) -> float:
-        """A duration drawn uniformly from ``[lo, hi]`` seconds, times the tempo."""
+        """A duration drawn uniformly from ``[lo, hi]`` seconds, times the tempo and the extent."""
+        return float(self.rng.uniform(lo, hi)) * self.tempo * self.extent
+
+    def scaled(self, seconds: float) -> float:
+        """A fixed duration (seconds) times the tempo and the extent, like ``span``'s."""
+        return seconds * self.tempo * self.extent
+
+    def period(self, lo: float, hi: float) -> float:
+        """A cycle period drawn uniformly from ``[lo, hi]`` seconds, times the tempo."""
         return float(self.rng.uniform(lo, hi)) * self.tempo
+
+    def cycles(self, lo: float, hi: float) -> float:
+        """A number of cycles drawn uniformly from ``[lo, hi]``, times the extent."""
+        return float(self.rng.uniform(lo, hi)) * self.extent
 
     def keys(self, *knots: tuple[float, float]) -> np.ndarray:
         """A profile through ``(time s, value)`` knots, minimum-jerk between them, held outside."""
@@ -185,10 +205,15 @@ def soft_clip(angles: np.ndarray, lower: np.ndarray, upper: np.ndarray, margin: 
     return np.where(out < lo, lo + m * np.tanh((out - lo) / m), out)
 
 
+def mirror_angles(angles: np.ndarray) -> np.ndarray:
+    """Joint angles ``(..., 50)`` (any unit) of the mirror-image pose: left and right swapped, x and z negated."""
+    return np.asarray(angles)[..., _MIRROR_INDEX] * _MIRROR_SIGN
+
+
 def mirror(plan: Plan) -> Plan:
     """The same movement performed with the other side (a left-handed or left-footed performer)."""
-    return Plan(plan.angles[:, _MIRROR_INDEX] * _MIRROR_SIGN, -plan.yaw, plan.pitch.copy(), -plan.roll,
-                plan.flight.copy(), plan.flight_speed)
+    return Plan(mirror_angles(plan.angles), -plan.yaw, plan.pitch.copy(), -plan.roll, plan.flight.copy(),
+                plan.flight_speed)
 
 
 def smooth_noise(rng: np.random.Generator, n: int, scale: np.ndarray, fps: float, smoothing_s: float

@@ -41,8 +41,8 @@ def _gait(k: Take, phase: np.ndarray, hip: float, knee_swing: float, knee_stance
     k.yaw += -5.0 * a * np.sin(phase)
     k.spine("z", 9.0 * a * np.sin(phase))
     k.neck("z", -4.0 * a * np.sin(phase))
-    k.roll += 3.0 * a * np.cos(phase)                      # pelvis drops on the swing side
-    k.pitch += lean + 2.0 * a * np.cos(2.0 * phase)
+    k.lean(roll=3.0 * a * np.cos(phase))                   # pelvis drops on the swing side
+    k.lean(pitch=lean + 2.0 * a * np.cos(2.0 * phase))
     k.spine("y", 0.5 * lean + 2.0 * np.cos(2.0 * phase))
     k.neck("y", -0.8 * lean)                              # keep the gaze level
     # Soles parallel to the floor except at push-off, where the heel rises (plantar flexion on top of the
@@ -61,8 +61,8 @@ def _gait(k: Take, phase: np.ndarray, hip: float, knee_swing: float, knee_stance
 def walk(k: Take) -> Plan:
     # From a stroll (straight arms) to a power walk (long stride, bent elbows, leaning into it).
     brisk = k.rng.uniform(0.0, 1.0)
-    period = k.span(0.95, 1.1)
-    cycles = k.rng.uniform(1.75, 2.0) - 0.2 * brisk        # <= 3 m even for a brisk walker
+    period = k.period(0.95, 1.1)
+    cycles = k.cycles(1.75, 2.0) - 0.2 * brisk             # <= 3 m even for a brisk walker
     t = k.begin(cycles * period)
     phase = TAU * t / period + k.rng.uniform(0.0, TAU)
     _gait(k, phase, hip=18.0 + 5.0 * brisk, knee_swing=50.0 + 15.0 * brisk, knee_stance=12.0, swing_peak=-0.5,
@@ -75,8 +75,8 @@ def walk(k: Take) -> Plan:
 def run(k: Take) -> Plan:
     # Intensity from a relaxed jog (short stride, low heels, arms half bent) to a stride.
     effort = k.rng.uniform(0.0, 1.0)
-    period = k.span(0.66, 0.72)
-    cycles = k.rng.uniform(1.35, 1.55) - 0.15 * effort       # shorter: a runner covers ~3 m in ~1 s
+    period = k.period(0.66, 0.72)
+    cycles = k.cycles(1.35, 1.55) - 0.15 * effort            # shorter: a runner covers ~3 m in ~1 s
     t = k.begin(cycles * period)
     phase = TAU * t / period + k.rng.uniform(0.0, TAU)
     _gait(k, phase, hip=26.0 + 10.0 * effort, knee_swing=60.0 + 45.0 * effort, knee_stance=25.0 + 8.0 * effort,
@@ -105,13 +105,17 @@ def jump(k: Take) -> Plan:
     arms_up = k.keys((t1 - 0.12, 0.0), (t2, 1.0), (t3, 0.8), (t4, 0.2), (t5, 0.0))   # swing starts early
     tuck = k.keys((t2, 0.0), (0.5 * (t2 + t3), 1.0), (t3, 0.0))
     push = k.keys((t1, 0.0), (t2, 1.0), (t2 + 0.1, 0.3), (t3, 0.0))
-    k.pitch += a * (26.0 * crouch + 4.0 * tuck)
+    k.lean(pitch=a * (26.0 * crouch + 4.0 * tuck))
     k.both("femur_y", a * (-68.0 * crouch - 35.0 * tuck))
     k.both("tibia_y", a * (68.0 * crouch + 40.0 * tuck))
     k.spine("y", a * 18.0 * crouch)
     k.neck("y", -20.0 * a * crouch)
-    k.both("humerus_y", a * (45.0 * crouch - 150.0 * arms_up))
-    k.both("radius_y", -15.0 - 10.0 * arms_up)
+    # Arm swing from overhead (reach 1) to back and down (reach 0: CMU subject 1's forward jumps, whose
+    # humeri extend 25 deg at take-off); elbows carried bent (CMU: 105 deg) straighten with the swing.
+    reach = k.rng.uniform(0.0, 1.0)
+    carry = k.rng.uniform(15.0, 100.0)
+    k.both("humerus_y", a * (45.0 * crouch - (150.0 * reach - 30.0 * (1.0 - reach)) * arms_up))
+    k.both("radius_y", -15.0 - carry * (1.0 - arms_up) - 10.0 * reach * arms_up)
     k.both("humerus_x", 10.0 * arms_up)
     k.flat_feet(1.0 - push)
     k.both("foot_y", 35.0 * a * push)
@@ -130,9 +134,9 @@ def squat(k: Take) -> Plan:
     k.begin(t3 + k.span(0.2, 0.7))
     depth = k.rng.uniform(0.7, 1.0)                        # half squat to full squat
     s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a * depth
-    arms = k.keys((t0, 0.0), (t1 - 0.2 * k.tempo, 1.0), (t2, 1.0), (t3, 0.0)) * a * k.rng.uniform(0.3, 1.0)
+    arms = k.keys((t0, 0.0), (t1 - k.scaled(0.2), 1.0), (t2, 1.0), (t3, 0.0)) * a * k.rng.uniform(0.3, 1.0)
     lean = k.rng.uniform(12.0, 32.0)                       # upright or hips-back squat
-    k.pitch += lean * s
+    k.lean(pitch=lean * s)
     k.both("femur_y", -(66.0 + lean) * s)
     k.both("tibia_y", 96.0 * s)
     k.both("femur_x", 8.0 * s)                             # knees track outward over the toes
@@ -154,7 +158,7 @@ def bow(k: Take) -> Plan:
     k.begin(t3 + k.span(0.2, 0.7))
     s = k.keys((t0, 0.0), (t1, 1.0), (t2, 1.0), (t3, 0.0)) * a * k.rng.uniform(0.7, 1.0)
     knees = k.rng.uniform(0.0, 20.0)                       # some bow with soft knees
-    k.pitch += 28.0 * s
+    k.lean(pitch=28.0 * s)
     k.both("femur_y", -(24.0 + knees) * s)                 # legs stay near vertical under a tipped pelvis
     k.both("tibia_y", (6.0 + 1.5 * knees) * s)
     k.spine("y", 45.0 * s)
@@ -182,10 +186,10 @@ def kick(k: Take) -> Plan:
     k.lr("femur_y", -15.0 * hip, -85.0 * hip)
     k.lr("tibia_y", 20.0 * hip, 100.0 * knee)
     k.lr("foot_y", 0.0, 25.0 * hip)                        # pointed foot
-    k.pitch += -14.0 * hip                                 # lean back to counter the raised leg
+    k.lean(pitch=-14.0 * hip)                              # lean back to counter the raised leg
     k.spine("y", -6.0 * hip)
     k.neck("y", 12.0 * hip)
-    k.roll += 5.0 * hip
+    k.lean(roll=5.0 * hip)
     k.lr("femur_x", -4.0 * hip, 0.0)
     k.both("humerus_y", -35.0 * guard)
     k.both("humerus_x", 18.0 * guard)
@@ -218,7 +222,7 @@ def punch(k: Take) -> Plan:
     guard = k.keys((t0, 0.0), (t1, 1.0), (t4, 1.0), (t5, 0.0))
     p = k.keys((t1, 0.0), (t2, 1.0), (t3, 1.0), (t4, 0.0)) * a
     # Some load the punch: a short pull back of the arm and trunk before it goes.
-    load = k.keys((t1 - 0.25 * k.tempo, 0.0), (t1, 1.0), (t2, 0.0)) * k.rng.uniform(0.0, 1.0)
+    load = k.keys((t1 - k.scaled(0.25), 0.0), (t1, 1.0), (t2, 0.0)) * k.rng.uniform(0.0, 1.0)
     k.lr("humerus_y", 0.0, 25.0 * load)
     k.spine("z", -15.0 * load)
     _guard_stance(k, guard)
@@ -229,7 +233,7 @@ def punch(k: Take) -> Plan:
     k.spine("z", 24.0 * p)                                 # right shoulder forward
     k.neck("z", -18.0 * p)                                 # eyes stay on the target
     k.yaw += 10.0 * p
-    k.pitch += 4.0 * guard + 4.0 * p
+    k.lean(pitch=4.0 * guard + 4.0 * p)
     k.lr("humerus_y", 10.0 * p, 0.0)                       # left hand pulls back
     k.flat_feet(1.0)
     return k.plan()
@@ -259,7 +263,7 @@ def throw(k: Take) -> Plan:
     k.neck("z", 25.0 * wind - 20.0 * rel)
     k.neck("y", -10.0 * rel)
     k.yaw += -12.0 * wind + 10.0 * rel
-    k.pitch += 8.0 * rel
+    k.lean(pitch=8.0 * rel)
     k.flat_feet(1.0)
     return k.plan()
 
@@ -270,8 +274,8 @@ def wave(k: Take) -> Plan:
     a = k.amp
     t0 = k.span(0.3, 0.5)
     t1 = t0 + k.span(0.45, 0.6)                            # arm up
-    period = k.span(0.5, 0.65)
-    cycles = k.rng.uniform(1.8, 2.1)
+    period = k.period(0.5, 0.65)
+    cycles = k.cycles(1.8, 2.1)
     t2 = t1 + cycles * period
     t3 = t2 + k.span(0.5, 0.65)
     t = k.begin(t3 + k.span(0.2, 0.35))
@@ -286,7 +290,7 @@ def wave(k: Take) -> Plan:
     k.spine("x", 6.0 * up)                                 # trunk leans away from the raised arm
     k.neck("x", -4.0 * up + 3.0 * a * wag)
     k.neck("z", -12.0 * up)                                # smile at whoever is waved at
-    k.roll += 2.0 * up
+    k.lean(roll=2.0 * up)
     k.flat_feet(1.0)
     return k.plan()
 
@@ -295,8 +299,8 @@ def wave(k: Take) -> Plan:
 def jumping_jack(k: Take) -> Plan:
     """Hop the feet apart while the arms sweep overhead, hop back; about two cycles."""
     a = k.amp
-    period = k.span(0.95, 1.1)
-    cycles = k.rng.uniform(1.9, 2.1)
+    period = k.period(0.95, 1.1)
+    cycles = k.cycles(1.9, 2.1)
     t = k.begin(cycles * period)
     phase = TAU * t / period + k.rng.uniform(0.0, TAU)
     arms = 0.5 * (1.0 - np.cos(phase))                     # 0 at the sides, 1 overhead
@@ -305,14 +309,18 @@ def jumping_jack(k: Take) -> Plan:
     legs = 0.5 * (1.0 - np.tanh(2.5 * np.cos(phase)) / np.tanh(2.5))
     k.flight[:] = np.abs(np.cos(phase)) < np.sin(0.5)
     landing = np.maximum(bump(2.0 * phase, np.pi + 0.8, 4.0), bump(2.0 * phase, np.pi - 0.8, 4.0))
-    k.both("humerus_x", 160.0 * a * arms)
-    k.both("humerus_y", -10.0 * arms)
-    k.both("radius_y", -10.0 - 15.0 * arms)
+    # Arms raised in a plane from the frontal (plane 0: straight out to the sides and overhead) to the
+    # scapular plane (plane 1: CMU subject 13, humeri flexed 110 deg and abducted 50 deg at the top, elbows
+    # bending from 35 to 85 deg).
+    plane = k.rng.uniform(0.0, 1.0)
+    k.both("humerus_x", a * (160.0 - 110.0 * plane) * arms)
+    k.both("humerus_y", -(10.0 + 100.0 * plane) * arms)
+    k.both("radius_y", -10.0 - (15.0 + k.rng.uniform(0.0, 40.0) * plane) * arms)
     k.both("femur_x", 16.0 * a * legs)
     k.both("foot_x", -14.0 * a * legs)                     # soles stay flat on spread legs
     k.both("femur_y", -14.0 * landing)
     k.both("tibia_y", 25.0 * landing)
-    k.pitch += 5.0 * landing
+    k.lean(pitch=5.0 * landing)
     k.neck("y", -4.0 * arms)
     k.flat_feet(1.0)
     return k.plan()

@@ -19,9 +19,9 @@ Steps (``retarget``):
    **height scale** ``s`` (humanoid ankle-to-head chain length over the source's), so that strides and
    jump heights scale with the body.
 4. **Base** position from the pelvis target, orientation from the hips line (y) and the spine (z).
-5. **Damped least squares IK** per frame over the base pose (6) and the 50 angles, with MuJoCo
-   Jacobians (``forward_points_and_jacobians``): ``(J^T J + lambda^2 I) dq = J^T r``; angles are clipped to
-   their ranges after every step (projected steps); each frame starts from the previous solution.
+5. **IK** per frame over the base pose (6) and the 50 angles within their ranges (``harness.motion.ik``:
+   bounded Levenberg-Marquardt with MuJoCo Jacobians, continuation from the previous frame, restarts
+   from analytic limb seeds where the residual is large or jumps).
 6. **Levelling and grounding**: captured floors are not always level (CMU's walks climb a few
    centimetres over three metres); with ``level_floor`` the plane through the stance feet
    (``z = a x + b y + c``, fitted when the stance points span at least ``LEVEL_MIN_SPAN`` m) is removed
@@ -42,20 +42,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness import geometry
-from harness.body import BodyModel, forward_points_and_jacobians, geom_z_range
+from harness.body import BodyModel, geom_z_range
 from harness.errors import HarnessError
+from harness.motion.ik import DEFAULT_DAMPING, DEFAULT_ITERATIONS, DEFAULT_POSTURE, solve_ik
 from harness.motion.skeletons import SITES, resolve_correspondence
 
-#: Damping of the least-squares steps (metres): small enough to converge to sub-millimetre residuals,
-#: large enough to keep unobservable DOFs (wrist twist, toes) at their warm start.
-DEFAULT_DAMPING = 0.01
-#: Pull of every angle towards zero (the upright reference pose), metres per radian. Joint positions leave
-#: some combinations unobservable (a spine twist undone by the clavicles, a humerus twist with a straight
-#: elbow); without this pull such combinations drift into their limits.
-DEFAULT_POSTURE = 0.02
-DEFAULT_ITERATIONS = 12
-FIRST_FRAME_ITERATIONS = 150
-STEP_TOLERANCE = 1e-6
 REQUIRED_BODIES = ("pelvis", "lfemur", "rfemur")
 HEIGHT_CHAIN = ("lfoot", "ltibia", "lfemur", "pelvis", "lowerback", "upperback", "thorax", "lowerneck", "upperneck", "head")
 
@@ -185,55 +176,6 @@ def proportional_targets(body: BodyModel, src: np.ndarray, bodies: list[int], sc
     return out
 
 
-def _skew_columns(r: np.ndarray) -> np.ndarray:
-    """``(K, 3, 3)``: column k is ``e_k x r``, the point velocity for a unit world rotation rate about axis k."""
-    return -np.cross(r[:, :, None], np.eye(3)[None, :, :], axisa=1, axisb=1, axisc=1)
-
-
-def solve_ik(body: BodyModel, targets: np.ndarray, target_bodies: np.ndarray, init: np.ndarray,
-             damping: float = DEFAULT_DAMPING, iterations: int = DEFAULT_ITERATIONS,
-             first_iterations: int = FIRST_FRAME_ITERATIONS, weights: np.ndarray | None = None,
-             posture: float = DEFAULT_POSTURE, target_local: np.ndarray | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """Damped least squares IK of body-fixed points onto ``targets (T, K, 3)`` (metres, world).
-
-    ``target_bodies`` ``(K,)`` body ids, ``target_local`` ``(K, 3)`` the points in those bodies' frames
-    (metres; default: the body origins); ``init`` ``(57,)`` the start of the first frame; every later frame
-    starts from the previous solution. Each step minimises
-    ``|J dq - r|^2 + damping^2 |dq|^2 + posture^2 |theta + dtheta|^2`` (the last term pulls the angles
-    towards the zero pose so that redundant combinations stay put). Unknowns: base position, base orientation (world-frame rotation
-    increments) and the 50 angles, clipped to the joint ranges after each step. ``weights`` ``(K,)``
-    scale each target's rows. Returns qpos ``(T, 57)`` and residual distances ``(T, K)`` metres.
-    """
-    targets = np.asarray(targets, dtype=float)
-    target_bodies = np.asarray(target_bodies, dtype=int)
-    w = np.ones(len(target_bodies)) if weights is None else np.asarray(weights, dtype=float)
-    w3 = np.repeat(w, 3)
-    local = np.zeros((len(target_bodies), 3)) if target_local is None else np.asarray(target_local, dtype=float)
-    q = np.array(init, dtype=float)
-    qpos = np.empty((len(targets), 57))
-    residual = np.empty(targets.shape[:2])
-    reg = damping ** 2 * np.eye(56)
-    reg[6:, 6:] += posture ** 2 * np.eye(56 - 6)
-    for t, goal in enumerate(targets):
-        for _ in range(first_iterations if t == 0 else iterations):
-            pos, jac = forward_points_and_jacobians(body, q, target_bodies, local, frame="world")
-            r = (goal - pos).ravel() * w3
-            full = np.concatenate([np.broadcast_to(np.eye(3), (len(pos), 3, 3)), _skew_columns(pos - q[:3]), jac],
-                                  axis=2).reshape(-1, 56) * w3[:, None]
-            rhs = full.T @ r
-            rhs[6:] -= posture ** 2 * q[body.angle_qpos_index]
-            step = np.linalg.solve(full.T @ full + reg, rhs)
-            q[:3] += step[:3]
-            q[3:7] = geometry.normalize(geometry.multiply(geometry.exp(step[3:6]), q[3:7]))
-            q[body.angle_qpos_index] = body.clip_angles(q[body.angle_qpos_index] + step[6:])
-            if np.max(np.abs(step)) < STEP_TOLERANCE:
-                break
-        pos = forward_points_and_jacobians(body, q, target_bodies, local, frame="world")[0]
-        qpos[t], residual[t] = q, np.linalg.norm(goal - pos, axis=1)
-    return qpos, residual
-
-
 #: A foot whose ankle moves slower than this (m/s, horizontally) is taken to be in stance.
 STANCE_SPEED = 0.25
 #: Percentile (of the lowest point of each stance foot over a clip) that is put at z = 0.
@@ -256,7 +198,7 @@ def foot_lows(body: BodyModel, qpos: np.ndarray, fps: float, speed: float = STAN
         geoms = np.flatnonzero(np.isin(body.model.geom_bodyid, [body.body_id(f"{side}foot"),
                                                                  body.body_id(f"{side}toes")]))
         low[:, i] = geom_z_range(body, qpos, geoms)[:, :, 0].min(axis=1)
-    v = np.linalg.norm(np.gradient(ankle[:, :, :2], 1.0 / fps, axis=0), axis=2)
+    v = np.linalg.norm(geometry.central_difference(ankle[:, :, :2], 1.0 / fps), axis=2)
     return low, ankle, v < speed
 
 
@@ -307,7 +249,7 @@ def retarget(positions: np.ndarray, joint_names: tuple[str, ...] | list[str], fp
     spine = next(n for n in ("thorax", "upperback", "lowerneck") if body.body_id(n) in bodies)
     init[3:7] = base_frames(*(src[0, bodies.index(body.body_id(n))] for n in ("pelvis", "lfemur", "rfemur", spine)))
     qpos, residual = solve_ik(body, targets, ids, init, damping=damping, iterations=iterations,
-                              posture=posture, target_local=local)
+                              posture=posture, target_local=local, target_names=tuple(names))
     tilt = floor_tilt(body, qpos, fps_final) if level_floor else np.zeros(len(qpos))
     qpos[:, 2] -= tilt
     targets[:, :, 2] -= tilt[:, None]

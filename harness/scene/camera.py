@@ -85,17 +85,10 @@ def camera_trajectory(motion: Motion, spec: CameraSpec) -> CameraTrajectory:
 def camera_velocity(traj: CameraTrajectory, fps: float) -> np.ndarray:
     """Camera velocity in its own frame, ``(T, 6)``: linear (m/s) then angular (rad/s), OpenCV axes.
 
-    Central differences inside, one-sided at the ends; the angular rate is ``log(R_a^T R_b) / dt_ab`` on
-    the rotation group, which is exact for a constant rate about a fixed camera axis.
+    Central differences inside, one-sided at the ends (``geometry.central_difference``); the angular rate is
+    ``log(R_a^T R_b) / dt_ab`` on the rotation group (``geometry.body_angular_velocity``).
     """
-    n = len(traj.pos)
     dt = 1.0 / fps
-    lin_world = np.gradient(traj.pos, dt, axis=0, edge_order=1) if n > 1 else np.zeros((n, 3))
-    lin = np.einsum("tji,tj->ti", traj.rot, lin_world)
-    quat = geometry.from_matrix(traj.rot)
-    prev = np.concatenate([quat[:1], quat[:-1]])
-    nxt = np.concatenate([quat[1:], quat[-1:]])
-    span = np.full(n, 2.0 * dt)
-    span[0] = span[-1] = dt
-    ang = geometry.log(geometry.multiply(geometry.conjugate(prev), nxt)) / span[:, None]
+    lin = np.einsum("tji,tj->ti", traj.rot, geometry.central_difference(traj.pos, dt))
+    ang = geometry.body_angular_velocity(geometry.from_matrix(traj.rot), dt)
     return np.concatenate([lin, ang], axis=1)
