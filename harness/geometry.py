@@ -124,20 +124,37 @@ def heading(q: np.ndarray) -> np.ndarray:
     return np.arctan2(fwd[..., 1], fwd[..., 0])
 
 
-def central_difference(x: np.ndarray, dt: float) -> np.ndarray:
+DIFFERENCE_SCHEMES = ("central", "backward")
+
+
+def finite_difference(x: np.ndarray, dt: float, scheme: str = "central") -> np.ndarray:
     """Time derivative of samples ``(T, ...)`` spaced ``dt`` seconds: central differences inside, one-sided at
-    the ends; zeros for a single sample."""
+    the ends; zeros for a single sample. ``scheme="backward"``: ``(x_t - x_{t-1}) / dt`` (the first sample
+    takes the second's), the rate of change over the interval that ends at each sample."""
     x = np.asarray(x, dtype=float)
-    return np.gradient(x, dt, axis=0, edge_order=1) if len(x) > 1 else np.zeros_like(x)
+    if len(x) < 2:
+        return np.zeros_like(x)
+    if scheme == "backward":
+        d = np.diff(x, axis=0) / dt
+        return np.concatenate([d[:1], d])
+    if scheme != "central":
+        raise ValueError(f"scheme must be one of {DIFFERENCE_SCHEMES}, got {scheme!r}")
+    return np.gradient(x, dt, axis=0, edge_order=1)
 
 
-def body_angular_velocity(q: np.ndarray, dt: float) -> np.ndarray:
+def body_angular_velocity(q: np.ndarray, dt: float, scheme: str = "central") -> np.ndarray:
     """Angular velocity ``(T, 3)`` (rad/s) in the moving frame of orientations ``q (T, 4)`` (parent from body)
     sampled every ``dt`` seconds: ``log(q_a^-1 q_b) / (t_b - t_a)`` between the neighbours of each sample
-    (one-sided at the ends), which is exact for a constant rate about a body-fixed axis."""
+    (one-sided at the ends), which is exact for a constant rate about a body-fixed axis. ``scheme="backward"``:
+    between the previous sample and this one (the first sample takes the second's)."""
     q = np.asarray(q, dtype=float)
     if len(q) < 2:
         return np.zeros((len(q), 3))
+    if scheme == "backward":
+        w = log(multiply(conjugate(q[:-1]), q[1:])) / dt
+        return np.concatenate([w[:1], w])
+    if scheme != "central":
+        raise ValueError(f"scheme must be one of {DIFFERENCE_SCHEMES}, got {scheme!r}")
     prev = np.concatenate([q[:1], q[:-1]])
     nxt = np.concatenate([q[1:], q[-1:]])
     span = np.full(len(q), 2.0 * dt)

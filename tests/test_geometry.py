@@ -106,7 +106,7 @@ def test_finite_difference_rates_are_exact_for_constant_motion(rng):
     q = g.multiply(q0, g.exp(t[:, None] * w))
     np.testing.assert_allclose(g.body_angular_velocity(q, 1.0 / 30.0), np.tile(w, (7, 1)), atol=1e-9)
     x = t[:, None] * np.array([1.0, -2.0, 0.5]) + 3.0
-    np.testing.assert_allclose(g.central_difference(x, 1.0 / 30.0), np.tile([1.0, -2.0, 0.5], (7, 1)),
+    np.testing.assert_allclose(g.finite_difference(x, 1.0 / 30.0), np.tile([1.0, -2.0, 0.5], (7, 1)),
                                atol=1e-9)
     assert np.array_equal(g.body_angular_velocity(q[:1], 0.1), np.zeros((1, 3)))
-    assert np.array_equal(g.central_difference(x[:1], 0.1), np.zeros((1, 3)))
+    assert np.array_equal(g.finite_difference(x[:1], 0.1), np.zeros((1, 3)))

@@ -328,6 +328,9 @@ class Tracker:
         cfg, dt = self.config, 1.0 / self.fps
         n_each = cfg.particles // len(self.tracks)
         for track in self.tracks:
+            # The belief moves first: a state's base velocity is over the interval ending at its own frame
+            # (features.VELOCITY_SCHEME), so the states of frame t carry the base from t-1 to t.
+            track.recognizer.predict()
             if pose is not None:
                 track.cloud = ParticleCloud(np.asarray(pose[0], float)[None], np.asarray(pose[1], float)[None],
                                             np.zeros(1))
@@ -342,7 +345,6 @@ class Tracker:
                     guide_std = (0.5 * track.spread, cfg.guide_rotation_std)
                 track.cloud = propose(track.cloud, n_each, v, w, dt, self._process_noise(), self._rng, camera_motion,
                                       guide, cfg.guide_fraction, guide_std)
-            track.recognizer.predict()
 
     def _process_noise(self) -> ProcessNoise:
         cfg = self.config

@@ -103,7 +103,7 @@ class Motion:
     @cached_property
     def velocities(self) -> MotionVelocities:
         """Finite-difference velocities (computed once, then cached)."""
-        return _velocities(self.qpos, self.fps)
+        return velocities_of(self.qpos, self.fps)
 
     # --- transformations ------------------------------------------------------------------------
 
@@ -155,10 +155,12 @@ class Motion:
             raise MotionError(f"{path}: not a motion file ({exc})") from None
 
 
-def _velocities(qpos: np.ndarray, fps: float) -> MotionVelocities:
+def velocities_of(qpos: np.ndarray, fps: float, scheme: str = "central") -> MotionVelocities:
+    """Finite-difference velocities of configurations ``(T, 57)`` at ``fps``: ``scheme`` as in
+    ``geometry.finite_difference`` (``"backward"``: over the interval that ends at each frame, as a flow is)."""
     dt = 1.0 / fps
     quat = qpos[:, 3:7]
-    lin_world = geometry.central_difference(qpos[:, :3], dt)
+    lin_world = geometry.finite_difference(qpos[:, :3], dt, scheme)
     lin_base = geometry.rotate(geometry.conjugate(quat), lin_world)
-    return MotionVelocities(geometry.central_difference(qpos[:, 7:], dt), lin_world, lin_base,
-                            geometry.body_angular_velocity(quat, dt))
+    return MotionVelocities(geometry.finite_difference(qpos[:, 7:], dt, scheme), lin_world, lin_base,
+                            geometry.body_angular_velocity(quat, dt, scheme))

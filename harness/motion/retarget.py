@@ -198,7 +198,7 @@ def foot_lows(body: BodyModel, qpos: np.ndarray, fps: float, speed: float = STAN
         geoms = np.flatnonzero(np.isin(body.model.geom_bodyid, [body.body_id(f"{side}foot"),
                                                                  body.body_id(f"{side}toes")]))
         low[:, i] = geom_z_range(body, qpos, geoms)[:, :, 0].min(axis=1)
-    v = np.linalg.norm(geometry.central_difference(ankle[:, :, :2], 1.0 / fps), axis=2)
+    v = np.linalg.norm(geometry.finite_difference(ankle[:, :, :2], 1.0 / fps), axis=2)
     return low, ankle, v < speed
 
 

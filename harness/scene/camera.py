@@ -85,10 +85,10 @@ def camera_trajectory(motion: Motion, spec: CameraSpec) -> CameraTrajectory:
 def camera_velocity(traj: CameraTrajectory, fps: float) -> np.ndarray:
     """Camera velocity in its own frame, ``(T, 6)``: linear (m/s) then angular (rad/s), OpenCV axes.
 
-    Central differences inside, one-sided at the ends (``geometry.central_difference``); the angular rate is
+    Central differences inside, one-sided at the ends (``geometry.finite_difference``); the angular rate is
     ``log(R_a^T R_b) / dt_ab`` on the rotation group (``geometry.body_angular_velocity``).
     """
     dt = 1.0 / fps
-    lin = np.einsum("tji,tj->ti", traj.rot, geometry.central_difference(traj.pos, dt))
+    lin = np.einsum("tji,tj->ti", traj.rot, geometry.finite_difference(traj.pos, dt))
     ang = geometry.body_angular_velocity(geometry.from_matrix(traj.rot), dt)
     return np.concatenate([lin, ang], axis=1)
