@@ -43,6 +43,6 @@ class OpenRegion:
         return out
 
     def _cells(self, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        finite = np.isfinite(pix).all(axis=-1)
-        safe = np.where(finite[..., None], pix, -1.0)
-        return np.floor(safe[..., 1] / self.cell).astype(int), np.floor(safe[..., 0] / self.cell).astype(int)
+        cells = np.floor(np.nan_to_num(np.asarray(pix, dtype=float) / self.cell, nan=-1.0, posinf=-1.0,
+                                       neginf=-1.0)).astype(int)
+        return cells[..., 1], cells[..., 0]

@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import logsumexp
+from harness.engine.logsum import logsumexp
 
 from harness import geometry
 from harness.errors import EngineError

@@ -9,7 +9,7 @@ features (the upper-bound baseline) or from image flows (the engine); the recurs
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import logsumexp
+from harness.engine.logsum import logsumexp
 
 from harness.engine.database import MotionDatabase
 from harness.errors import EngineError
@@ -78,8 +78,9 @@ class Recognizer:
 
     @property
     def posterior(self) -> np.ndarray:
-        """``(C, K)`` joint posterior over primitives and states."""
-        return np.exp(self.log_alpha - logsumexp(self.log_alpha))
+        """``(C, K)`` joint posterior over primitives and states (``log_alpha`` is kept normalised)."""
+        p = np.exp(self.log_alpha - self.log_alpha.max())
+        return p / p.sum()
 
     @property
     def state_posterior(self) -> np.ndarray:

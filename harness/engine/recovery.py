@@ -74,8 +74,9 @@ def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows:
         w = mass[used] / sigma2                                       # (Q,)
         PR = P @ rot
         G = np.concatenate([PR @ jac, P, -PR @ _skew(x)], axis=2)     # (Q, 2, 56)
-        A = np.einsum("q,qki,qkj->ij", w, G, G)
-        b = np.einsum("q,qki,qk->i", w, G, target - u)
+        Gw = (G * np.sqrt(w)[:, None, None]).reshape(-1, G.shape[-1])     # rows of sqrt(W_p) G_p
+        A = Gw.T @ Gw                                                    # sum_p W_p G_p^T G_p
+        b = Gw.T @ ((target - u) * np.sqrt(w)[:, None]).ravel()          # sum_p W_p G_p^T r_p
         offset = np.concatenate([angles - angles0, pos - position0, geometry.log(geometry.from_matrix(rot0.T @ rot))])
         A[np.diag_indices_from(A)] += prior_prec
         b -= prior_prec * offset

@@ -25,7 +25,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
-from scipy.special import logsumexp, softmax
+from scipy.special import softmax
+
+from harness.engine.logsum import logsumexp
 
 from harness import geometry
 from harness.body.model import BodyModel

@@ -65,12 +65,13 @@ class PointDistributions:
         """The moment-matched single Gaussian of the states' mixture with ``weights`` (S,): one 'state'."""
         w = np.asarray(weights, dtype=float)
         w = w / w.sum()
-        pos = np.einsum("s,spi->pi", w, self.pos)
-        vel = np.einsum("s,spi->pi", w, self.vel)
+        pos = np.tensordot(w, self.pos, 1)
+        vel = np.tensordot(w, self.vel, 1)
         dp, dv = self.pos - pos, self.vel - vel
-        pos_cov = np.einsum("s,spij->pij", w, self.pos_cov) + np.einsum("s,spi,spj->pij", w, dp, dp)
-        vel_cov = np.einsum("s,spij->pij", w, self.vel_cov) + np.einsum("s,spi,spj->pij", w, dv, dv)
-        normal = np.einsum("s,spi->pi", w, self.normal)
+        # sum_s w_s d_s d_s^T per point, as (P, 3, S) @ (P, S, 3)
+        pos_cov = np.tensordot(w, self.pos_cov, 1) + (dp * w[:, None, None]).transpose(1, 2, 0) @ dp.transpose(1, 0, 2)
+        vel_cov = np.tensordot(w, self.vel_cov, 1) + (dv * w[:, None, None]).transpose(1, 2, 0) @ dv.transpose(1, 0, 2)
+        normal = np.tensordot(w, self.normal, 1)
         normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
         return PointDistributions(pos[None], pos_cov[None], vel[None], vel_cov[None], normal[None],
                                   (w @ self.base_linear)[None], (w @ self.base_angular)[None])
