@@ -36,6 +36,7 @@ from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_
                                             initial_cloud, level_world, motion_mean, propose, systematic_resample)
 from harness.engine.recognition import Recognizer
 from harness.engine.recovery import recover
+from harness.engine.switching import SwitchingRecognizer
 from harness.engine.track import Recovered, Track, turned, twin
 from harness.engine.transform import PointDistributions, to_image
 from harness.errors import EngineError
@@ -227,6 +228,9 @@ class Tracker:
     # --- stages ---------------------------------------------------------------------------------
 
     def _new_recognizer(self) -> Recognizer:
+        if self.config.primitive_switch > 0:
+            return SwitchingRecognizer(self.model.db, self.config.primitive_switch, self.config.start_spread,
+                                       self.config.prune)
         return Recognizer(self.model.db, self.config.start_spread, self.config.prune)
 
     def _start(self, flows: np.ndarray, camera_motion: np.ndarray | None, pose) -> None:
