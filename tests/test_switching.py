@@ -152,3 +152,15 @@ def test_the_tracker_builds_a_switching_recognizer_when_asked(monkeypatch):
     assert type(tracker._new_recognizer()) is Recognizer
     with pytest.raises(EngineError, match="primitive_switch"):
         TrackerConfig(primitive_switch=1.5)
+
+
+def test_online_labels_report_a_change_after_min_frames_of_lead():
+    from harness.engine.switching import online_labels
+
+    best = [0, 0, 1, 0, 1, 1, 1, 2, 2, 0, 0, 0]
+    post = np.eye(3)[best] * 0.8 + 0.1
+    assert online_labels(post, 1).tolist() == best
+    # A lead of one frame (1 at frame 2) or two (2 at frames 7-8) is not reported; three frames are.
+    assert online_labels(post, 3).tolist() == [0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 0]
+    with pytest.raises(EngineError, match="min_frames"):
+        online_labels(post, 0)

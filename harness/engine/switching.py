@@ -16,15 +16,16 @@ only the prediction differs). The choices, with ``s`` the engine setting ``primi
   ``MotionDatabase`` makes that state absorbing), ``e_c(K-1) = s``; a cyclic one (``db.cyclic``: walk, run,
   ...) from any state, ``e_c(j) = s``, since a performer stops a gait anywhere in its cycle (leaving after a
   full cycle, from the last state, is one of these). ``s`` is the per-frame probability of a primitive change
-  from an exit state; its value for procedural streams comes from their mean primitive duration
-  (``docs/streams.md``).
+  from an exit state; for procedural streams it is one over their mean primitive duration in frames
+  (``docs/streams.md``; the recognition measured on development streams hardly depends on it).
 - **next primitive**: any primitive, uniformly, the same one included (a performer repeats squats):
   ``P[c, c'] = 1 / C``.
 - **entry**: the database's start distribution with the same spread as the recursion's first frame,
   ``pi_c = (1 - start_spread) startprob_c + start_spread / K``: a primitive in a stream begins as its
   demonstrations began.
 
-With ``s = 0`` the recursion is the isolated one (tested).
+With ``s = 0`` the recursion is the isolated one (tested). ``online_labels`` turns the class posteriors into
+the reported labels.
 """
 
 from __future__ import annotations
@@ -35,6 +36,11 @@ from scipy.special import logsumexp
 from harness.engine.database import MotionDatabase
 from harness.engine.recognition import Recognizer
 from harness.errors import EngineError
+
+
+# Online segmentation: a new primitive is reported once it has been the most probable for this many frames in
+# a row (see online_labels; chosen on development streams, docs/streams.md).
+STREAM_MIN_FRAMES = 4
 
 
 def exit_states(db: MotionDatabase) -> np.ndarray:
@@ -110,3 +116,26 @@ def recognize_stream_features(db: MotionDatabase, features: np.ndarray, switch: 
         rec.update(log_b[t])
         out[t] = rec.class_posterior
     return out
+
+
+def online_labels(class_posterior: np.ndarray, min_frames: int) -> np.ndarray:
+    """Per-frame primitive indices ``(T,)`` from class posteriors ``(T, C)``, decided online: the label starts as
+    the first frame's most probable primitive and changes to another at the frame where that one has been the
+    most probable for ``min_frames`` frames in a row (so a change is reported ``min_frames - 1`` frames after it
+    began, and a lead shorter than ``min_frames`` frames is not reported). ``min_frames = 1`` is the per-frame
+    argmax."""
+    post = np.asarray(class_posterior, dtype=float)
+    if post.ndim != 2 or len(post) == 0:
+        raise EngineError(f"class posteriors must be (T, C) with T >= 1, got {post.shape}")
+    if min_frames < 1:
+        raise EngineError(f"min_frames must be at least 1, got {min_frames}")
+    best = np.argmax(post, axis=1)
+    out = np.empty(len(best), dtype=int)
+    current, run = best[0], 0
+    for t, b in enumerate(best):
+        run = run + 1 if t > 0 and b == best[t - 1] else 1
+        if b != current and run >= min_frames:
+            current = b
+        out[t] = current
+    return out
+

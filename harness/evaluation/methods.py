@@ -10,6 +10,10 @@ adding a method is one registration here.
 - ``no_database``: per-frame fitting of the angles to the 2D points at the true baselink pose, without the
   HMM prior (what the database's prior adds, compared with ``gt_base``); no recognition;
 - ``joint_space``: forward recognition from the true joint-space features (the upper bound); no recovery.
+
+On a stream (``RunInputs.labels`` given) the methods that recognise are scored per frame with the stream
+columns (``harness.evaluation.stream_metrics``) instead of one label per run; their recognised segments are kept
+in the row (``segments_pred``) for the timeline plots.
 """
 
 from __future__ import annotations
@@ -20,9 +24,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.body import BodyModel, SurfacePoints
-from harness.engine import MotionDatabase, Tracker, motion_features, recognize_features
+from harness.engine import MotionDatabase, Tracker, TrackerConfig, motion_features, recognize_features
 from harness.engine.recovery import fit_without_database
+from harness.engine.switching import STREAM_MIN_FRAMES, online_labels, recognize_stream_features
 from harness.evaluation import metrics
+from harness.evaluation.stream_metrics import STREAM_COLUMNS, stream_scores
+from harness.motion.stream import label_segments
 from harness.motion import Motion
 from harness.observation import Observation
 from harness.scene.simulate import GroundTruth
@@ -34,6 +41,7 @@ RECOVERY_COLUMNS = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam
                     "heading_err_deg", "tilt_err_deg", "reproj_px")
 BASE_POSE_COLUMNS = ("base_pos_err_m", "base_depth_err_m", "base_rot_err_deg", "heading_err_deg", "tilt_err_deg")
 CURVE_POINTS = 10       # accuracy_curve: whether the argmax is right at 10 evenly spaced fractions of the clip
+STREAM_RECOGNITION_COLUMNS = STREAM_COLUMNS + ("segments_pred",)
 
 
 @dataclass(frozen=True)
@@ -42,7 +50,8 @@ class RunInputs:
 
     body: the engine's nominal body. subject: the observed body (``body`` itself unless the scenario scales
     the subject). motion: the test motion as the subject performed it. truth: the scene's ground truth.
-    tracker: a fresh engine (own random stream) on every call.
+    tracker: a fresh engine (own random stream) on every call. labels: a stream's true label per frame
+    ``(T,)`` (``label`` is then ``"stream"``), None for one primitive. engine: the engine's settings.
     """
 
     key: str
@@ -55,6 +64,12 @@ class RunInputs:
     obs: Observation
     truth: GroundTruth
     tracker: Callable[[], Tracker]
+    labels: np.ndarray | None = None
+    engine: TrackerConfig = TrackerConfig()
+
+    @property
+    def recognition_columns(self) -> tuple[str, ...]:
+        return RECOGNITION_COLUMNS if self.labels is None else STREAM_RECOGNITION_COLUMNS
 
 
 @dataclass(frozen=True)
@@ -89,7 +104,7 @@ def produces(name: str, column: str) -> bool:
     m = METHODS.get(name)
     if m is None:
         return True
-    if column in RECOGNITION_COLUMNS:
+    if column in RECOGNITION_COLUMNS or column in STREAM_RECOGNITION_COLUMNS:
         return m.recognises
     if column in RECOVERY_COLUMNS:
         return m.recovers
@@ -110,6 +125,24 @@ def recognition_scores(post: np.ndarray, classes, label: str, fps: float) -> dic
     return (metrics.recognition(post, classes, label, fps)
             | {"log_p_true": metrics.log_p_true(post, classes, label),
                "accuracy_curve": accuracy_curve(post, classes, label)})
+
+
+def segment_list(labels) -> list[list]:
+    """Per-frame labels as ``[[label, start, stop], ...]`` (a row's compact record of a labelling)."""
+    return [[seg.label, seg.start, seg.stop] for seg in label_segments(labels)]
+
+
+def stream_recognition_scores(post: np.ndarray, classes, labels: np.ndarray, fps: float) -> dict:
+    """Stream columns of class posteriors ``(T, C)`` against the true labels per frame: the online labels
+    (``engine.switching.online_labels``) scored with ``stream_metrics``, and their segments."""
+    recognised = np.asarray(classes)[online_labels(post, STREAM_MIN_FRAMES)]
+    return stream_scores(recognised, labels, fps) | {"segments_pred": segment_list(recognised)}
+
+
+def _recognition(inputs: RunInputs, post: np.ndarray, fps: float) -> dict:
+    if inputs.labels is not None:
+        return stream_recognition_scores(post, inputs.classes, inputs.labels, fps)
+    return recognition_scores(post, inputs.classes, inputs.label, fps)
 
 
 def nominal_markers(markers: SurfacePoints, subject: BodyModel) -> SurfacePoints:
@@ -144,15 +177,15 @@ def recovery_scores(inputs: RunInputs, qpos_est: np.ndarray) -> dict:
 
 
 def not_produced(columns: tuple[str, ...]) -> dict:
-    return {c: ("" if c == "class_pred" else [] if c == "accuracy_curve" else np.nan) for c in columns}
+    return {c: ("" if c == "class_pred" else [] if c in ("accuracy_curve", "segments_pred") else np.nan)
+            for c in columns}
 
 
 def _engine(inputs: RunInputs, base_pose) -> dict:
     if inputs.obs.counts.sum() == 0:        # nothing seen: nothing to score (NaN, counted as missing)
-        return not_produced(RECOGNITION_COLUMNS + RECOVERY_COLUMNS)
+        return not_produced(inputs.recognition_columns + RECOVERY_COLUMNS)
     est = inputs.tracker().run(inputs.obs, base_pose=base_pose)
-    return (recognition_scores(est.class_posterior, inputs.classes, inputs.label, inputs.obs.fps)
-            | recovery_scores(inputs, est.qpos))
+    return _recognition(inputs, est.class_posterior, inputs.obs.fps) | recovery_scores(inputs, est.qpos)
 
 
 @method("full", recognises=True, recovers=True)
@@ -173,11 +206,13 @@ def _no_database(inputs: RunInputs) -> dict:
                                   truth.base_pos_cam, truth.base_quat_cam, tracker.config.noise_px,
                                   tracker.model.spread)
     qpos = metrics.camera_qpos(inputs.body, truth.base_pos_cam, truth.base_quat_cam, angles)
-    return not_produced(RECOGNITION_COLUMNS) | recovery_scores(inputs, qpos)
+    return not_produced(inputs.recognition_columns) | recovery_scores(inputs, qpos)
 
 
 @method("joint_space", recognises=True, recovers=False)
 def _joint_space(inputs: RunInputs) -> dict:
-    post = recognize_features(inputs.db, motion_features(inputs.motion))
-    return (recognition_scores(post, inputs.classes, inputs.label, inputs.motion.fps)
-            | not_produced(RECOVERY_COLUMNS))
+    features = motion_features(inputs.motion)
+    switch = inputs.engine.primitive_switch
+    post = (recognize_stream_features(inputs.db, features, switch, inputs.engine.start_spread) if switch > 0
+            else recognize_features(inputs.db, features))
+    return _recognition(inputs, post, inputs.motion.fps) | not_produced(RECOVERY_COLUMNS)
