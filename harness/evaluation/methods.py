@@ -9,7 +9,10 @@ adding a method is one registration here.
 - ``gt_base``: the engine handed the true baselink pose (isolates recognition and recovery from tracking);
 - ``no_database``: per-frame fitting of the angles to the 2D points at the true baselink pose, without the
   HMM prior (what the database's prior adds, compared with ``gt_base``); no recognition;
-- ``joint_space``: forward recognition from the true joint-space features (the upper bound); no recovery.
+- ``joint_space``: forward recognition from the true joint-space features (the upper bound); no recovery;
+- ``reproduction`` (only when a scenario lists it): the engine from flows, then the recognised primitive's
+  reproduction along the recovered state path (``harness.engine.reproduction``), compared after dynamic time
+  warping with the demonstration, beside the true class's mean trajectory (``REPRODUCTION_COLUMNS``).
 
 On a stream (``RunInputs.labels`` given) the methods that recognise are scored per frame with the stream
 columns (``harness.evaluation.stream_metrics``) instead of one label per run; their recognised segments are kept
@@ -42,6 +45,7 @@ RECOVERY_COLUMNS = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam
 BASE_POSE_COLUMNS = ("base_pos_err_m", "base_depth_err_m", "base_rot_err_deg", "heading_err_deg", "tilt_err_deg")
 CURVE_POINTS = 10       # accuracy_curve: whether the argmax is right at 10 evenly spaced fractions of the clip
 STREAM_RECOGNITION_COLUMNS = STREAM_COLUMNS + ("segments_pred",)
+REPRODUCTION_COLUMNS = ("repro_dtw_deg", "repro_dtw_mm", "mean_dtw_deg", "mean_dtw_mm", "repro_beats_mean")
 
 
 @dataclass(frozen=True)
@@ -82,15 +86,17 @@ class Method:
     recognises: bool
     recovers: bool
     given: tuple[str, ...] = ()
+    default: bool = True
 
 
 METHODS: dict[str, Method] = {}
 
 
-def method(name: str, recognises: bool, recovers: bool, given: tuple[str, ...] = ()):
-    """Register ``score(inputs) -> columns`` under ``name`` (registration order is the report's order)."""
+def method(name: str, recognises: bool, recovers: bool, given: tuple[str, ...] = (), default: bool = True):
+    """Register ``score(inputs) -> columns`` under ``name`` (registration order is the report's order).
+    ``default``: run when a scenario does not list its methods."""
     def register(score: Callable[[RunInputs], dict]):
-        METHODS[name] = Method(name, score, recognises, recovers, given)
+        METHODS[name] = Method(name, score, recognises, recovers, given, default)
         return score
     return register
 
@@ -99,8 +105,14 @@ def method_names() -> tuple[str, ...]:
     return tuple(METHODS)
 
 
+def default_methods() -> tuple[str, ...]:
+    """The methods a scenario runs when it does not list them."""
+    return tuple(m.name for m in METHODS.values() if m.default)
+
+
 def produces(name: str, column: str) -> bool:
-    """Whether method ``name`` produces ``column`` (recognition and recovery columns; others always)."""
+    """Whether method ``name`` produces ``column`` (recognition, recovery and reproduction columns; others
+    always)."""
     m = METHODS.get(name)
     if m is None:
         return True
@@ -108,6 +120,8 @@ def produces(name: str, column: str) -> bool:
         return m.recognises
     if column in RECOVERY_COLUMNS:
         return m.recovers
+    if column in REPRODUCTION_COLUMNS:
+        return name == "reproduction"
     return True
 
 
@@ -216,3 +230,22 @@ def _joint_space(inputs: RunInputs) -> dict:
     post = (recognize_stream_features(inputs.db, features, switch, inputs.engine.start_spread) if switch > 0
             else recognize_features(inputs.db, features))
     return _recognition(inputs, post, inputs.motion.fps) | not_produced(RECOVERY_COLUMNS)
+
+
+@method("reproduction", recognises=False, recovers=False, default=False)
+def _reproduction(inputs: RunInputs) -> dict:
+    from harness.engine.reproduction import class_mean, reproduce, state_path
+    from harness.evaluation.reproduction_metrics import dtw_angle_rms_deg, dtw_mpjpe_mm
+
+    if inputs.labels is not None or inputs.obs.counts.sum() == 0:    # one primitive per run, and something seen
+        return {c: np.nan for c in REPRODUCTION_COLUMNS}
+    est = inputs.tracker().run(inputs.obs)
+    label, fps, demo = est.predicted, inputs.obs.fps, inputs.motion
+    repro = reproduce(inputs.db, inputs.body, label, state_path(inputs.db, est.joint_posterior, label), fps,
+                      angles=est.qpos[:, 7:])
+    mean = class_mean(inputs.db, inputs.body, inputs.label, demo.n_frames, fps)
+    out = {"repro_dtw_deg": dtw_angle_rms_deg(repro.angles, demo.angles),
+           "repro_dtw_mm": dtw_mpjpe_mm(inputs.body, repro.qpos, inputs.subject, demo.qpos),
+           "mean_dtw_deg": dtw_angle_rms_deg(mean.angles, demo.angles),
+           "mean_dtw_mm": dtw_mpjpe_mm(inputs.body, mean.qpos, inputs.subject, demo.qpos)}
+    return {"class_pred": label} | out | {"repro_beats_mean": int(out["repro_dtw_deg"] < out["mean_dtw_deg"])}

@@ -38,7 +38,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 
 from harness.engine import TrackerConfig
 from harness.errors import EngineError, HarnessError
-from harness.evaluation.methods import method_names
+from harness.evaluation.methods import default_methods, method_names
 from harness.motion.performer import CLASSES as PROCEDURAL_CLASSES
 from harness.scene.spec import (CameraSpec, MarkerSpec, ObservationSpec, OccluderGeom, OccluderSpec, SceneError,
                                 SceneSpec, SubjectSpec)
@@ -239,7 +239,7 @@ class Scenario(_Section):
     occluders: OccludersConfig = OccludersConfig()
     observation: ObservationConfig = ObservationConfig()
     engine: EngineConfig = EngineConfig()
-    methods: tuple[str, ...] = Field(default_factory=method_names)
+    methods: tuple[str, ...] = Field(default_factory=default_methods)
     sweep: dict[str, list[Any]] = Field(default_factory=dict)
 
     @field_validator("methods")

@@ -22,12 +22,13 @@ from harness.io import write_text_atomic
 
 RECOGNITION = ("correct", "frame_accuracy", "time_to_correct_s", "log_p_true")
 STREAM = ("edit_score", "f1_10", "f1_25", "f1_50", "boundary_delay_s")      # with frame_accuracy: streams
+REPRODUCTION = ("repro_dtw_deg", "repro_dtw_mm", "mean_dtw_deg", "mean_dtw_mm", "repro_beats_mean")
 RECOVERY = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", "pa_mpjpe_mm", "pa_mpjpe17_mm",
             "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m", "base_rot_err_deg", "heading_err_deg",
             "tilt_err_deg", "reproj_px")
 SCENE = ("self_occlusion", "obstacle_occlusion", "n_frames", "mean_flows")
 TIMING = ("ms_per_frame",)
-METRICS = RECOGNITION + STREAM + RECOVERY + SCENE + TIMING
+METRICS = RECOGNITION + STREAM + RECOVERY + REPRODUCTION + SCENE + TIMING
 HEADLINE = ("correct", "log_p_true", "mpjpe_cam_mm", "pa_mpjpe_mm", "mpjpe_pose_mm", "base_pos_err_m",
             "heading_err_deg", "tilt_err_deg", "angle_rms_deg", "reproj_px")
 STREAM_HEADLINE = ("frame_accuracy", "edit_score", "f1_10", "f1_25", "f1_50", "boundary_delay_s", "mpjpe_cam_mm",
@@ -146,7 +147,7 @@ def pooled_metrics(rows: pd.DataFrame) -> dict[str, float]:
     """``{"<method>/<metric>": mean over every run of every condition}``: what ``harness regress`` compares."""
     out = {}
     for method, g in rows.groupby("method"):
-        for metric in RECOGNITION + STREAM + RECOVERY + TIMING:
+        for metric in RECOGNITION + STREAM + RECOVERY + REPRODUCTION + TIMING:
             if metric in g:
                 x = pd.to_numeric(g[metric], errors="coerce").to_numpy(dtype=float)
                 x = x[np.isfinite(x)]
@@ -247,7 +248,11 @@ def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], clas
     out_dir = Path(out_dir)
     summ = summary(rows, swept, n_boot, seed)
     timing = summ[summ["metric"].isin(TIMING)] if len(summ) else summ
-    tables = {"summary": summ, "headline": headline(summ, swept, STREAM_HEADLINE if is_stream(rows) else HEADLINE),
+    if "repro_dtw_deg" in rows:         # reproduction columns next to the others
+        head = tuple(dict.fromkeys(REPRODUCTION + (STREAM_HEADLINE if is_stream(rows) else HEADLINE)))
+    else:
+        head = STREAM_HEADLINE if is_stream(rows) else HEADLINE
+    tables = {"summary": summ, "headline": headline(summ, swept, head),
               "per_class": per_class(rows), "paired_tests": paired_tests(rows),
               "timing": headline(timing, swept, TIMING),
               "accuracy_over_time": accuracy_over_time(rows), "worst_runs": worst_runs(rows)}
