@@ -72,7 +72,7 @@ def reproduce_command(args: argparse.Namespace) -> int:
     label = est.predicted
     world = recovered_world(nominal, est.qpos, None if obs.gravity is None else obs.gravity[0])
     repro = reproduce(db, body, label, state_path(db, est.joint_posterior, label), obs.fps,
-                      start_xy=world[0, :2] * args.scale, start_heading=float(heading(world[0, 3:7])),
+                      start_heading=float(heading(world[0, 3:7])),
                       mirror=args.mirror, angles=est.qpos[:, 7:])
     repro = repro.replace(source=repro.source + (f", body scaled {args.scale:g}" if args.scale != 1.0 else ""))
     repro.save(args.out)

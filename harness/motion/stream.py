@@ -46,6 +46,8 @@ from harness.body import BodyModel
 from harness.body.grounding import ground
 from harness.errors import HarnessError
 from harness.io import save_npz_atomic
+from harness.motion.bvh import load_bvh
+from harness.motion.captures import MANIFEST_NAME, CaptureRow, CaptureSetError, read_manifest, retarget_rows
 from harness.motion.motion import Motion, MotionError
 from harness.motion.performer import CLASSES, demonstrations
 
@@ -302,11 +304,9 @@ def join(motions: list[Motion], windows: list[int], body: BodyModel | None = Non
 
 # --- captured streams ------------------------------------------------------------------------------------
 
-def take_rows(rows, take: str) -> list:
+def take_rows(rows: list[CaptureRow], take: str) -> list[CaptureRow]:
     """The manifest rows of one take (``take``: the file name or its stem), in frame order; overlapping
     rows of different classes are an error."""
-    from harness.motion.captures import CaptureSetError
-
     mine = sorted((r for r in rows if take in (r.file, Path(r.file).stem)), key=lambda r: r.start)
     if not mine:
         takes = sorted({Path(r.file).stem for r in rows})
@@ -323,9 +323,6 @@ def capture_stream(directory: str | Path, take: str, manifest: str | Path | None
     """The labelled stream of one capture take: its frames from the first labelled row's start to the last
     row's end, retargeted as one motion at ``fps``; each frame labelled by the row it falls in (by time),
     ``transition`` between rows."""
-    from harness.motion.bvh import load_bvh
-    from harness.motion.captures import MANIFEST_NAME, read_manifest, retarget_rows
-
     directory = Path(directory)
     rows = take_rows(read_manifest(Path(manifest) if manifest is not None else directory / MANIFEST_NAME), take)
     first = rows[0]
