@@ -12,6 +12,7 @@ import sys
 # that ``--help`` lists them all. Heavy imports stay inside the commands, so the table is cheap to load.
 import harness.engine.cli  # noqa: F401
 import harness.evaluation.cli  # noqa: F401
+import harness.evaluation.reproduce_cli  # noqa: F401
 import harness.evaluation.run_video  # noqa: F401
 import harness.motion.capture_cli  # noqa: F401
 import harness.motion.render_cli  # noqa: F401

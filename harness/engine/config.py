@@ -32,6 +32,7 @@ class TrackerConfig:
     prune: float = 1e-4                      # states below this times their primitive's best are not scored
     weigh_classes: int = 3                   # particles are weighed under at most this many primitives ...
     weigh_class_mass: float = 0.95           # ... the fewest that hold this much of the track's belief
+    primitive_switch: float = 0.0            # per-frame probability of a primitive change (0: one per sequence)
     position_noise: float = 0.15             # m / sqrt(s), process noise of the base position
     rotation_noise: float = 0.3              # rad / sqrt(s), of the base orientation (yaw when gravity is known)
     tilt_noise: float = 0.05                 # rad / sqrt(s), of the tilt when gravity is known
@@ -68,6 +69,8 @@ class TrackerConfig:
             value = getattr(self, name)
             if not 0 < value < 1:
                 raise EngineError(f"engine setting {name} must be in (0, 1), got {value}")
+        if not 0 <= self.primitive_switch < 1:
+            raise EngineError(f"engine setting primitive_switch must be in [0, 1), got {self.primitive_switch}")
         if not 0 <= self.guide_fraction < 1:
             raise EngineError(f"engine setting guide_fraction must be in [0, 1), got {self.guide_fraction}")
         near, far = self.init_distance

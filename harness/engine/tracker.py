@@ -40,6 +40,7 @@ from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_
                                             initial_cloud, level_world, motion_mean, propose, systematic_resample)
 from harness.engine.recognition import Recognizer
 from harness.engine.recovery import recover
+from harness.engine.switching import SwitchingRecognizer
 from harness.engine.track import Recovered, Track, turned, twin
 from harness.engine.transform import PointDistributions, to_image
 from harness.errors import EngineError
@@ -268,6 +269,9 @@ class Tracker:
     # --- stages ---------------------------------------------------------------------------------
 
     def _new_recognizer(self) -> Recognizer:
+        if self.config.primitive_switch > 0:
+            return SwitchingRecognizer(self.model.db, self.config.primitive_switch, self.config.start_spread,
+                                       self.config.prune)
         return Recognizer(self.model.db, self.config.start_spread, self.config.prune)
 
     def _start(self, flows: np.ndarray, camera_motion: np.ndarray | None, pose) -> None:
@@ -457,7 +461,7 @@ class Tracker:
     def _hindsight(self, causal_qpos: np.ndarray, causal_post: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The offline estimate: the whole trajectory of the track with the most evidence at the end, smoothed
         over ``smoothing_frames``, and every frame's class posterior the last frame's ``p(c | y_1:T)`` (one
-        primitive per clip)."""
+        primitive per clip; a stream, ``primitive_switch > 0``, keeps its causal posteriors)."""
         lead = max(self.tracks, key=lambda t: t.log_evidence)
         T = len(causal_qpos)
         if lead.origin == "given" or len(lead.history) == 0:
@@ -466,4 +470,5 @@ class Tracker:
             path = np.array(lead.history)
             first = T - len(path)                 # frames before the track's first: its first pose
             path = np.concatenate([np.repeat(path[:1], first, axis=0), path]) if first > 0 else path[-T:]
-        return smooth_trajectory(path, self.config.smoothing_frames), np.repeat(causal_post[-1:], T, axis=0)
+        post = causal_post if self.config.primitive_switch > 0 else np.repeat(causal_post[-1:], T, axis=0)
+        return smooth_trajectory(path, self.config.smoothing_frames), post

@@ -11,7 +11,14 @@ adding a method is one registration here.
 - ``gt_base``: the engine handed the true baselink pose (isolates recognition and recovery from tracking);
 - ``no_database``: per-frame fitting of the angles to the 2D points at the true baselink pose, without the
   HMM prior (what the database's prior adds, compared with ``gt_base``); no recognition;
-- ``joint_space``: forward recognition from the true joint-space features (the upper bound); no recovery.
+- ``joint_space``: forward recognition from the true joint-space features (the upper bound); no recovery;
+- ``reproduction`` (only when a scenario lists it): the engine from flows, then the recognised primitive's
+  reproduction along the recovered state path (``harness.engine.reproduction``), compared after dynamic time
+  warping with the demonstration, beside the true class's mean trajectory (``REPRODUCTION_COLUMNS``).
+
+On a stream (``RunInputs.labels`` given) the methods that recognise are scored per frame with the stream
+columns (``harness.evaluation.stream_metrics``) instead of one label per run; their recognised segments are kept
+in the row (``segments_pred``) for the timeline plots.
 """
 
 from __future__ import annotations
@@ -22,9 +29,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from harness.body import BodyModel, SurfacePoints
-from harness.engine import MotionDatabase, Tracker, motion_features, recognize_features
+from harness.engine import MotionDatabase, Tracker, TrackerConfig, motion_features, recognize_features
 from harness.engine.recovery import fit_without_database
+from harness.engine.switching import STREAM_MIN_FRAMES, online_labels, recognize_stream_features
 from harness.evaluation import metrics
+from harness.evaluation.stream_metrics import STREAM_COLUMNS, stream_scores
+from harness.motion.stream import label_segments
 from harness.motion import Motion
 from harness.observation import Observation
 from harness.scene.simulate import GroundTruth
@@ -36,6 +46,8 @@ RECOVERY_COLUMNS = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam
                     "heading_err_deg", "tilt_err_deg", "reproj_px")
 BASE_POSE_COLUMNS = ("base_pos_err_m", "base_depth_err_m", "base_rot_err_deg", "heading_err_deg", "tilt_err_deg")
 CURVE_POINTS = 10       # accuracy_curve: whether the argmax is right at 10 evenly spaced fractions of the clip
+STREAM_RECOGNITION_COLUMNS = STREAM_COLUMNS + ("segments_pred",)
+REPRODUCTION_COLUMNS = ("repro_dtw_deg", "repro_dtw_mm", "mean_dtw_deg", "mean_dtw_mm", "repro_beats_mean")
 
 
 @dataclass(frozen=True)
@@ -44,8 +56,10 @@ class RunInputs:
 
     body: the engine's nominal body. subject: the observed body (``body`` itself unless the scenario scales
     the subject). motion: the test motion as the subject performed it. truth: the scene's ground truth.
-    tracker: a fresh engine (own random stream) on every call. estimates: the engine's estimates of this run
-    by method (``full`` and ``full_smoothed`` share one run of the engine).
+    tracker: a fresh engine (own random stream) on every call. labels: a stream's true label per frame
+    ``(T,)`` (``label`` is then ``"stream"``), None for one primitive. engine: the engine's settings.
+    estimates: the engine's estimates of this run by kind (``full`` and ``full_smoothed`` share one run of the
+    engine).
     """
 
     key: str
@@ -58,7 +72,13 @@ class RunInputs:
     obs: Observation
     truth: GroundTruth
     tracker: Callable[[], Tracker]
+    labels: np.ndarray | None = None
+    engine: TrackerConfig = TrackerConfig()
     estimates: dict = field(default_factory=dict)
+
+    @property
+    def recognition_columns(self) -> tuple[str, ...]:
+        return RECOGNITION_COLUMNS if self.labels is None else STREAM_RECOGNITION_COLUMNS
 
 
 @dataclass(frozen=True)
@@ -71,15 +91,17 @@ class Method:
     recognises: bool
     recovers: bool
     given: tuple[str, ...] = ()
+    default: bool = True
 
 
 METHODS: dict[str, Method] = {}
 
 
-def method(name: str, recognises: bool, recovers: bool, given: tuple[str, ...] = ()):
-    """Register ``score(inputs) -> columns`` under ``name`` (registration order is the report's order)."""
+def method(name: str, recognises: bool, recovers: bool, given: tuple[str, ...] = (), default: bool = True):
+    """Register ``score(inputs) -> columns`` under ``name`` (registration order is the report's order).
+    ``default``: run when a scenario does not list its methods."""
     def register(score: Callable[[RunInputs], dict]):
-        METHODS[name] = Method(name, score, recognises, recovers, given)
+        METHODS[name] = Method(name, score, recognises, recovers, given, default)
         return score
     return register
 
@@ -88,15 +110,23 @@ def method_names() -> tuple[str, ...]:
     return tuple(METHODS)
 
 
+def default_methods() -> tuple[str, ...]:
+    """The methods a scenario runs when it does not list them."""
+    return tuple(m.name for m in METHODS.values() if m.default)
+
+
 def produces(name: str, column: str) -> bool:
-    """Whether method ``name`` produces ``column`` (recognition and recovery columns; others always)."""
+    """Whether method ``name`` produces ``column`` (recognition, recovery and reproduction columns; others
+    always)."""
     m = METHODS.get(name)
     if m is None:
         return True
-    if column in RECOGNITION_COLUMNS:
+    if column in RECOGNITION_COLUMNS or column in STREAM_RECOGNITION_COLUMNS:
         return m.recognises
     if column in RECOVERY_COLUMNS:
         return m.recovers
+    if column in REPRODUCTION_COLUMNS:
+        return name == "reproduction"
     return True
 
 
@@ -114,6 +144,24 @@ def recognition_scores(post: np.ndarray, classes, label: str, fps: float) -> dic
     return (metrics.recognition(post, classes, label, fps)
             | {"log_p_true": metrics.log_p_true(post, classes, label),
                "accuracy_curve": accuracy_curve(post, classes, label)})
+
+
+def segment_list(labels) -> list[list]:
+    """Per-frame labels as ``[[label, start, stop], ...]`` (a row's compact record of a labelling)."""
+    return [[seg.label, seg.start, seg.stop] for seg in label_segments(labels)]
+
+
+def stream_recognition_scores(post: np.ndarray, classes, labels: np.ndarray, fps: float) -> dict:
+    """Stream columns of class posteriors ``(T, C)`` against the true labels per frame: the online labels
+    (``engine.switching.online_labels``) scored with ``stream_metrics``, and their segments."""
+    recognised = np.asarray(classes)[online_labels(post, STREAM_MIN_FRAMES)]
+    return stream_scores(recognised, labels, fps) | {"segments_pred": segment_list(recognised)}
+
+
+def _recognition(inputs: RunInputs, post: np.ndarray, fps: float) -> dict:
+    if inputs.labels is not None:
+        return stream_recognition_scores(post, inputs.classes, inputs.labels, fps)
+    return recognition_scores(post, inputs.classes, inputs.label, fps)
 
 
 def nominal_markers(markers: SurfacePoints, subject: BodyModel) -> SurfacePoints:
@@ -148,19 +196,19 @@ def recovery_scores(inputs: RunInputs, qpos_est: np.ndarray) -> dict:
 
 
 def not_produced(columns: tuple[str, ...]) -> dict:
-    return {c: ("" if c == "class_pred" else [] if c == "accuracy_curve" else np.nan) for c in columns}
+    return {c: ("" if c == "class_pred" else [] if c in ("accuracy_curve", "segments_pred") else np.nan)
+            for c in columns}
 
 
 def _engine(inputs: RunInputs, base_pose, smoothed: bool = False) -> dict:
     if inputs.obs.counts.sum() == 0:        # nothing seen: nothing to score (NaN, counted as missing)
-        return not_produced(RECOGNITION_COLUMNS + RECOVERY_COLUMNS)
+        return not_produced(inputs.recognition_columns + RECOVERY_COLUMNS)
     key = "given" if base_pose is not None else "flows"
     if key not in inputs.estimates:
         inputs.estimates[key] = inputs.tracker().run(inputs.obs, base_pose=base_pose)
     est = inputs.estimates[key]
     post, qpos = ((est.smoothed_class_posterior, est.smoothed_qpos) if smoothed else (est.class_posterior, est.qpos))
-    return (recognition_scores(post, inputs.classes, inputs.label, inputs.obs.fps)
-            | recovery_scores(inputs, qpos))
+    return _recognition(inputs, post, inputs.obs.fps) | recovery_scores(inputs, qpos)
 
 
 @method("full", recognises=True, recovers=True)
@@ -186,11 +234,32 @@ def _no_database(inputs: RunInputs) -> dict:
                                   truth.base_pos_cam, truth.base_quat_cam, tracker.config.noise_px,
                                   tracker.model.spread)
     qpos = metrics.camera_qpos(inputs.body, truth.base_pos_cam, truth.base_quat_cam, angles)
-    return not_produced(RECOGNITION_COLUMNS) | recovery_scores(inputs, qpos)
+    return not_produced(inputs.recognition_columns) | recovery_scores(inputs, qpos)
 
 
 @method("joint_space", recognises=True, recovers=False)
 def _joint_space(inputs: RunInputs) -> dict:
-    post = recognize_features(inputs.db, motion_features(inputs.motion))
-    return (recognition_scores(post, inputs.classes, inputs.label, inputs.motion.fps)
-            | not_produced(RECOVERY_COLUMNS))
+    features = motion_features(inputs.motion)
+    switch = inputs.engine.primitive_switch
+    post = (recognize_stream_features(inputs.db, features, switch, inputs.engine.start_spread) if switch > 0
+            else recognize_features(inputs.db, features))
+    return _recognition(inputs, post, inputs.motion.fps) | not_produced(RECOVERY_COLUMNS)
+
+
+@method("reproduction", recognises=False, recovers=False, default=False)
+def _reproduction(inputs: RunInputs) -> dict:
+    from harness.engine.reproduction import class_mean, reproduce, state_path
+    from harness.evaluation.reproduction_metrics import dtw_angle_rms_deg, dtw_mpjpe_mm
+
+    if inputs.labels is not None or inputs.obs.counts.sum() == 0:    # one primitive per run, and something seen
+        return {c: np.nan for c in REPRODUCTION_COLUMNS}
+    est = inputs.tracker().run(inputs.obs)
+    label, fps, demo = est.predicted, inputs.obs.fps, inputs.motion
+    repro = reproduce(inputs.db, inputs.body, label, state_path(inputs.db, est.joint_posterior, label), fps,
+                      angles=est.qpos[:, 7:])
+    mean = class_mean(inputs.db, inputs.body, inputs.label, demo.n_frames, fps)
+    out = {"repro_dtw_deg": dtw_angle_rms_deg(repro.angles, demo.angles),
+           "repro_dtw_mm": dtw_mpjpe_mm(inputs.body, repro.qpos, inputs.subject, demo.qpos),
+           "mean_dtw_deg": dtw_angle_rms_deg(mean.angles, demo.angles),
+           "mean_dtw_mm": dtw_mpjpe_mm(inputs.body, mean.qpos, inputs.subject, demo.qpos)}
+    return {"class_pred": label} | out | {"repro_beats_mean": int(out["repro_dtw_deg"] < out["mean_dtw_deg"])}

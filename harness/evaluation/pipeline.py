@@ -25,11 +25,12 @@ from harness.body import BodyModel
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
 from harness.engine.database import CYCLIC_PRIMITIVES
 from harness.evaluation.cache import cached, path_for_key
-from harness.evaluation.methods import METHODS, RunInputs
+from harness.evaluation.methods import METHODS, RunInputs, segment_list
 from harness.evaluation.runner import RunError, RunSpec
 from harness.evaluation.scenario import Scenario, scene_spec, tracker_config
 from harness.motion import Motion
 from harness.motion.performer import demonstrations, training_set
+from harness.motion.stream import TRANSITION, Stream, capture_stream, procedural_stream
 from harness.observation import Observation
 from harness.scene.simulate import GroundTruth, simulate
 from harness.streams import named_stream
@@ -59,9 +60,32 @@ def _captures(cfg: Scenario) -> tuple[tuple, tuple[Motion, ...]]:
     return _capture_set(str(cfg.database.capture_dir), cfg.database.manifest, float(cfg.database.fps))
 
 
+@lru_cache(maxsize=2)
+def _capture_stream(capture_dir: str, manifest: str, take: str, fps: float) -> Stream:
+    return capture_stream(capture_dir, take, Path(capture_dir) / manifest, fps, nominal_body())
+
+
+def test_stream(run: RunSpec) -> Stream | None:
+    """The run's test stream (``test.stream``: a procedural stream by a held-out subject, or a capture take), or
+    None for a run of one primitive."""
+    cfg = run.config
+    stream = cfg.test.stream
+    if stream is None:
+        return None
+    if stream.takes is not None:
+        return _capture_stream(str(cfg.database.capture_dir), cfg.database.manifest, stream.takes[run.test_demo],
+                               float(cfg.database.fps))
+    return procedural_stream(named_stream(run.seed, "motion"), classes=cfg.classes, primitives=stream.primitives,
+                             transition_s=stream.transition_s, fps=cfg.database.fps,
+                             subject=TEST_SUBJECT_OFFSET + run.test_demo, body=nominal_body(),
+                             demo=str(run.test_demo))
+
+
 def test_motion(run: RunSpec) -> Motion:
     """The run's test motion as the nominal body performs it (the scene plays it on the scenario's subject)."""
     cfg = run.config
+    if cfg.test.stream is not None:
+        return test_stream(run).motion
     if cfg.database.source == "capture" or cfg.test.split == "captures":
         from harness.motion.captures import demos_by_class
 
@@ -77,11 +101,16 @@ def test_motion(run: RunSpec) -> Motion:
 def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
     """Procedural: ``performer.training_set``, plus (with ``database.with_captures``) every capture demo of
     another subject than the test motion's. Capture: every manifest demo of the scenario's classes except the
-    test demo (leave_one_out) or except the test subject's demos (cross_subject)."""
+    test demo (leave_one_out) or except the test subject's demos (cross_subject); for a capture stream,
+    except every row of its take."""
     db = cfg.database
     if db.source == "capture":
         motions = [m for m in _captures(cfg)[1] if m.label in cfg.classes]
-        if test is not None and cfg.test.split == "leave_one_out":
+        if test is not None and cfg.test.stream is not None:
+            # A capture stream is a whole take: none of its rows trains the database.
+            take = test.demo.split(":")[0]
+            motions = [m for m in motions if m.demo.split(":")[0] != take]
+        elif test is not None and cfg.test.split == "leave_one_out":
             motions = [m for m in motions if not (m.demo == test.demo and m.label == test.label)]
         elif test is not None and cfg.test.split == "cross_subject":
             motions = [m for m in motions if m.subject != test.subject]
@@ -144,7 +173,7 @@ def fresh_tracker(database_path: str, config: TrackerConfig, rng: np.random.Gene
 
 def clear_caches() -> None:
     """Forget every cached value (tests use it to run a run as if alone in a new process)."""
-    for f in (nominal_body, _capture_set, _stored_database, _prototype):
+    for f in (nominal_body, _capture_set, _capture_stream, _stored_database, _prototype):
         f.cache_clear()
 
 
@@ -170,15 +199,20 @@ def run_inputs(run: RunSpec) -> RunInputs:
     if run.code and run.code != code_version():
         raise RunError(f"run {run.key}: this process runs code {code_version()}, the run was planned with "
                        f"{run.code} (every worker must run the same checkout)")
-    motion = test_motion(run)
+    stream = test_stream(run)
+    motion = test_motion(run) if stream is None else stream.motion
     db, db_path = database(cfg, motion, run.cache_dir)
-    if run.test_class not in db.classes_:
-        raise RunError(f"run {run.key}: class {run.test_class!r} has no training demonstration in this split")
+    labels = None if stream is None else stream.labels
+    missing = sorted(set(labels) - set(db.classes_) - {TRANSITION}) if stream is not None else (
+        [] if run.test_class in db.classes_ else [run.test_class])
+    if missing:
+        raise RunError(f"run {run.key}: class {missing[0]!r} has no training demonstration in this split")
     observed, obs, truth, subject = simulate_run(run, motion)
     tc = tracker_config(cfg)
     return RunInputs(key=run.key, label=run.test_class, classes=tuple(db.classes_), body=nominal_body(),
                      subject=subject, db=db, motion=observed, obs=obs, truth=truth,
-                     tracker=lambda: fresh_tracker(db_path, tc, named_stream(run.seed, "engine")))
+                     tracker=lambda: fresh_tracker(db_path, tc, named_stream(run.seed, "engine")),
+                     labels=labels, engine=tc)
 
 
 def run_one(run: RunSpec) -> list[dict]:
@@ -187,6 +221,8 @@ def run_one(run: RunSpec) -> list[dict]:
     common = {"class_true": run.test_class, "n_frames": len(obs), "mean_flows": float(obs.counts[1:].mean()),
               "self_occlusion": float(truth.self_fraction.mean()),
               "obstacle_occlusion": float(truth.obstacle_fraction.mean())}
+    if inputs.labels is not None:
+        common["segments_true"] = segment_list(inputs.labels)
     rows = []
     for name in run.config.methods:
         t0 = time.perf_counter()
@@ -197,4 +233,4 @@ def run_one(run: RunSpec) -> list[dict]:
 
 
 __all__ = ["clear_caches", "database", "fresh_tracker", "nominal_body", "run_inputs", "run_one",
-           "simulate_run", "test_motion", "training_motions"]
+           "simulate_run", "test_motion", "test_stream", "training_motions"]

@@ -25,9 +25,12 @@ PLOT_METRICS: dict[str, tuple[str, ...]] = {
     "camera.elevation": ("correct", "mpjpe_cam_mm", "base_pos_err_m", "heading_err_deg"),
     "camera.distance": ("correct", "mpjpe_cam_mm", "base_depth_err_m"),
     "engine.particles": ("correct", "base_pos_err_m", "mpjpe_cam_mm", "ms_per_frame"),
+    "engine.primitive_switch": ("frame_accuracy", "f1_25", "boundary_delay_s"),
 }
+STREAM_METRICS = ("frame_accuracy", "f1_25", "boundary_delay_s", "mpjpe_cam_mm")   # streams, against other keys
 DEFAULT_METRICS = ("correct", "mpjpe_cam_mm")
-LABELS = {"correct": "accuracy", "frame_accuracy": "per-frame accuracy", "mpjpe_cam_mm": "MPJPE camera frame (mm)",
+LABELS = {"correct": "accuracy", "frame_accuracy": "per-frame accuracy", "f1_25": "F1@25",
+          "edit_score": "edit score", "boundary_delay_s": "boundary delay (s)", "mpjpe_cam_mm": "MPJPE camera frame (mm)",
           "mpjpe_pose_mm": "MPJPE pose only (mm)", "pa_mpjpe_mm": "PA-MPJPE (mm)",
           "heading_err_deg": "heading error (deg)",
           "mpjpe_abs_mm": "MPJPE abs. (mm)", "angle_rms_deg": "joint angle RMS (deg)",
@@ -77,7 +80,10 @@ def _colour(method: str) -> str:
 
 def plot_against(rows: pd.DataFrame, key: str, path: Path, seed: int = 0) -> bool:
     """Metrics against swept ``key``, one panel per metric, one line per method; False if nothing to draw."""
-    metrics = [m for m in PLOT_METRICS.get(key, DEFAULT_METRICS) if m in rows and rows[m].notna().any()]
+    wanted = PLOT_METRICS.get(key, DEFAULT_METRICS)
+    if "edit_score" in rows and key != "engine.primitive_switch":
+        wanted = STREAM_METRICS
+    metrics = [m for m in wanted if m in rows and rows[m].notna().any()]
     values = list(dict.fromkeys(rows[key]))
     if not metrics or not _numeric(values):
         return False
@@ -103,18 +109,21 @@ def plot_against(rows: pd.DataFrame, key: str, path: Path, seed: int = 0) -> boo
 
 
 def plot_measured_occlusion(rows: pd.DataFrame, path: Path) -> bool:
-    """Accuracy per condition against the measured occlusion (self + obstacle, mean over runs)."""
+    """Accuracy per condition against the measured occlusion (self + obstacle, mean over runs); the per-frame
+    accuracy for streams."""
     if not {"self_occlusion", "obstacle_occlusion"} <= set(rows) or rows["obstacle_occlusion"].isna().all():
         return False
+    metric = "correct" if "correct" in rows else "frame_accuracy"
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5, 3.6))
     for method, g in rows.groupby("method", sort=False):
-        per = g.assign(occ=g["self_occlusion"] + g["obstacle_occlusion"]).groupby("condition", sort=False)
-        pts = per.agg(occ=("occ", "mean"), acc=("correct", "mean")).sort_values("occ")
+        per = g.assign(occ=g["self_occlusion"] + g["obstacle_occlusion"],
+                       acc=pd.to_numeric(g[metric], errors="coerce")).groupby("condition", sort=False)
+        pts = per.agg(occ=("occ", "mean"), acc=("acc", "mean")).sort_values("occ")
         if pts["acc"].notna().any():
             ax.plot(pts["occ"], pts["acc"], marker="o", label=method, color=_colour(method))
     ax.set_xlabel("measured occlusion (fraction of markers hidden)")
-    ax.set_ylabel("accuracy")
+    ax.set_ylabel(LABELS[metric])
     ax.set_ylim(-0.02, 1.02)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
@@ -195,12 +204,73 @@ def plot_accuracy_over_time(curve: pd.DataFrame, path: Path) -> bool:
     return True
 
 
-def write_plots(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str]) -> list[str]:
-    """Every plot the scenario calls for, under ``out_dir/plots``; returns their paths relative to ``out_dir``."""
+TRANSITION_COLOUR = (0.85, 0.85, 0.85)
+
+
+def _segments(value) -> list:
+    """A row's segment record (``[[label, start, stop], ...]``; a string when read back from CSV)."""
+    if isinstance(value, str):
+        import ast
+
+        value = ast.literal_eval(value)
+    return list(value) if isinstance(value, (list, tuple)) else []
+
+
+def plot_timeline(run_rows: pd.DataFrame, classes: list[str], fps: float, path: Path) -> bool:
+    """One stream run: the true labels over time and, below, each recognising method's online labels, one
+    colour per primitive (transitions grey), the method's frame accuracy and F1@25 beside it."""
+    from harness.motion.stream import TRANSITION
+
+    rec = run_rows[[len(_segments(v)) > 0 for v in run_rows.get("segments_pred", [])]] \
+        if "segments_pred" in run_rows else run_rows.iloc[0:0]
+    if not len(run_rows) or "segments_true" not in run_rows:
+        return False
+    plt = _pyplot()
+    import matplotlib
+
+    cmap = matplotlib.colormaps["tab10"]
+    colour = {c: cmap(i % 10) for i, c in enumerate(classes)}
+    lanes = [("true", _segments(run_rows.iloc[0]["segments_true"]), "")]
+    for r in rec.itertuples(index=False):
+        lanes.append((r.method, _segments(r.segments_pred),
+                      f"frames {r.frame_accuracy:.2f}, F1@25 {r.f1_25:.2f}"))
+    end = max(stop for _, segs, _ in lanes for _, _, stop in segs)
+    fig, ax = plt.subplots(figsize=(10, 0.55 * len(lanes) + 1.2))
+    for y, (_, segs, _) in enumerate(lanes):
+        for label, start, stop in segs:
+            ax.broken_barh([(start / fps, (stop - start) / fps)], (len(lanes) - 1 - y - 0.4, 0.8),
+                           facecolors=TRANSITION_COLOUR if label == TRANSITION else colour.get(label, "k"),
+                           edgecolor="white", linewidth=0.5)
+            if label != TRANSITION and (stop - start) / end > 0.04:
+                ax.text((start + stop) / 2 / fps, len(lanes) - 1 - y, label, ha="center", va="center", fontsize=7)
+    ax.set_yticks(range(len(lanes)), [f"{name}\n{note}" if note else name for name, _, note in reversed(lanes)],
+                  fontsize=7)
+    ax.set_xlim(0, end / fps)
+    ax.set_xlabel("time (s)")
+    ax.set_title(f"{run_rows.iloc[0]['run_key']}: true labels (top) and recognised labels", fontsize=9)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+    return True
+
+
+def timeline_name(run_key: str) -> str:
+    return "plots/timelines/" + run_key.replace("/", "_") + ".png"
+
+
+def write_plots(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str], fps: float = 30.0
+                ) -> list[str]:
+    """Every plot the scenario calls for, under ``out_dir/plots``; returns their paths relative to ``out_dir``.
+    ``fps``: the runs' frame rate (the time axis of stream timelines)."""
     from harness.evaluation.tables import accuracy_over_time, confusion, per_class
 
     out_dir = Path(out_dir)
     made = []
+    if "segments_true" in rows:
+        for key, g in rows.groupby("run_key", sort=True):
+            name = timeline_name(str(key))
+            if plot_timeline(g, classes, fps, out_dir / name):
+                made.append(name)
     if plot_accuracy_over_time(accuracy_over_time(rows), out_dir / "plots/accuracy_over_time.png"):
         made.append("plots/accuracy_over_time.png")
     if plot_class_heatmap(per_class(rows), classes, out_dir / "plots/class_accuracy.png"):

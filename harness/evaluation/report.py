@@ -12,7 +12,7 @@ import yaml
 from harness.evaluation.plots import write_plots
 from harness.evaluation.runner import load_rows
 from harness.evaluation.scenario import Scenario, scenario_hash
-from harness.evaluation.tables import markdown, write_tables
+from harness.evaluation.tables import is_stream, markdown, write_tables
 from harness.io import write_text_atomic
 
 
@@ -51,8 +51,10 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
         write_text_atomic(path, text)
         return path
     tables = write_tables(rows, results_dir, swept, classes, seed=scenario.seed)
-    figures = write_plots(rows, results_dir, swept, classes) if plots else []
+    figures = write_plots(rows, results_dir, swept, classes, scenario.database.fps) if plots else []
     n_runs = rows["run_key"].nunique()
+    if is_stream(rows):
+        return _stream_report(scenario, results_dir, rows, tables, figures, digest)
     parts = [
         f"# Evaluation: {scenario.name}\n",
         "## Headline\n",
@@ -90,6 +92,52 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
                         or Path(f).stem == "accuracy_vs_measured_occlusion")
     if swept_plots:
         parts += ["## Against the swept keys\n", *_section_plots(figures, swept_plots)]
+    parts += ["## Scenario\n", "```yaml\n" + yaml.safe_dump(scenario.model_dump(mode="json"), sort_keys=False)
+              + "```\n",
+              "## Timing (reported, not part of identity checks)\n", markdown(tables["timing"])]
+    path = results_dir / "report.md"
+    write_text_atomic(path, "\n".join(parts))
+    return path
+
+
+def _stream_report(scenario: Scenario, results_dir: Path, rows: pd.DataFrame, tables: dict, figures: list[str],
+                   digest: str) -> Path:
+    """The report of a stream scenario: headline with the segmentation columns, a timeline per run, the worst
+    runs, paired tests, plots against the swept keys, the scenario, timing."""
+    n_runs = rows["run_key"].nunique()
+    parts = [
+        f"# Evaluation: {scenario.name}\n",
+        "## Headline\n",
+        f"{n_runs} stream runs ({rows['condition'].nunique()} conditions x {scenario.repeats} repeats x streams), "
+        f"methods: {', '.join(dict.fromkeys(rows['method']))}. Means with 95% bootstrap intervals over runs, three "
+        f"significant figures. Recognition is scored per frame on the online labels "
+        f"(`docs/streams.md`): `frame_accuracy` leaves transition frames out; `edit_score` and `f1_*` (F1 at "
+        f"10/25/50% overlap) compare the recognised segments with the true ones (fractions, 1 = perfect); "
+        f"`boundary_delay_s` is the mean delay from a true primitive change to its detection. `given`: the method "
+        f"is handed that quantity; `–`: it does not produce it. Scenario hash `{digest}`.\n",
+        markdown(tables["headline"]),
+    ]
+    worst = tables["worst_runs"]
+    if len(worst):
+        parts += ["## The three worst runs of `full`\n", "Lowest frame accuracy first. Render one:\n",
+                  markdown(worst), "```bash\n" + "".join(
+                      f"python -m harness run-video {results_dir} {k} --out {_video_name(k)}\n"
+                      for k in worst["run_key"]) + "```\n"]
+    parts += [
+        "## Paired tests (same runs)\n",
+        "Wilcoxon signed-rank test on camera-frame MPJPE (protocol 1), `full` against each other method.\n",
+        markdown(tables["paired_tests"]),
+    ]
+    swept_plots = tuple(Path(f).stem for f in figures if Path(f).stem.startswith("vs_")
+                        or Path(f).stem == "accuracy_vs_measured_occlusion")
+    if swept_plots:
+        parts += ["## Against the swept keys\n", *_section_plots(figures, swept_plots)]
+    timelines = [f for f in figures if f.startswith("plots/timelines/")]
+    if timelines:
+        parts += ["## Timelines\n",
+                  "Per run: the true labels (top; transitions grey) and the labels each method recognised online, "
+                  "with its frame accuracy and F1@25.\n",
+                  *[f"![{Path(f).stem}]({f})\n" for f in timelines]]
     parts += ["## Scenario\n", "```yaml\n" + yaml.safe_dump(scenario.model_dump(mode="json"), sort_keys=False)
               + "```\n",
               "## Timing (reported, not part of identity checks)\n", markdown(tables["timing"])]

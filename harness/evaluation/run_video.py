@@ -143,9 +143,11 @@ def render_run(results_dir: str | Path, run_key: str, method: str = "full") -> t
         for joints, colour in ((est_cam[t], ESTIMATE_RGB), (true_cam[t], TRUE_RGB)):
             front = joints[:, 2] > 0.05
             _skeleton(img, project(intr, np.where(front[:, None], joints, 1.0)), parents, colour, front)
-        cv2.putText(img, f"{run_key}  t={t / obs.fps:.2f}s  true {run.test_class} (green), {method} (magenta)",
+        # A stream's true label changes over time (transition frames have none among the classes).
+        true = run.test_class if inputs.labels is None else str(inputs.labels[t])
+        cv2.putText(img, f"{run_key}  t={t / obs.fps:.2f}s  true {true} (green), {method} (magenta)",
                     (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (255, 255, 255), 1, cv2.LINE_AA)
-        frames.append(np.concatenate([img, posterior_panel(est.class_posterior, classes, run.test_class, t,
+        frames.append(np.concatenate([img, posterior_panel(est.class_posterior, classes, true, t,
                                                            img.shape[0])], axis=1))
     summary = (f"{run_key}: true {run.test_class}, recognised {est.predicted}; obstacle occlusion "
                f"{truth.obstacle_fraction.mean():.2f}, self-occlusion {truth.self_fraction.mean():.2f}")

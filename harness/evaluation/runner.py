@@ -33,6 +33,7 @@ from harness.version import code_version
 
 RunFunction = Callable[["RunSpec"], list[dict]]
 IDENTITY_COLUMNS = ("run_key", "scenario", "condition", "repeat", "test_class", "test_demo", "seed")
+STREAM_CLASS = "stream"         # the test class of a stream run (its labels are per frame)
 
 
 class RunError(HarnessError):
@@ -96,8 +97,14 @@ def derive_seed(scenario_seed: int, repeat: int, test_class: str, test_demo: int
 
 def motions_under_test(config: Scenario) -> list[tuple[str, int]]:
     """``(class, demo index)`` of every test motion: held-out procedural demos, or every manifest demo of the
-    listed classes (the pipeline trains each capture split's database without the runs it tests)."""
+    listed classes (the pipeline trains each capture split's database without the runs it tests); for streams
+    ``("stream", i)``, the i-th procedural stream or capture take."""
     db = config.database
+    if config.test.stream is not None:
+        # Streams: one run per procedural stream or capture take; the class column says "stream".
+        stream = config.test.stream
+        n = len(stream.takes) if stream.takes is not None else stream.count
+        return [(STREAM_CLASS, i) for i in range(n)]
     if db.source == "procedural" and config.test.split == "heldout":
         return [(c, db.train_demos + i) for c in config.classes for i in range(config.test.demos_per_class)]
     from harness.motion.captures import demos_by_class, read_manifest

@@ -38,7 +38,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 
 from harness.engine import TrackerConfig
 from harness.errors import EngineError, HarnessError
-from harness.evaluation.methods import method_names
+from harness.evaluation.methods import default_methods, method_names
 from harness.motion.performer import CLASSES as PROCEDURAL_CLASSES
 from harness.scene.spec import (CameraSpec, MarkerSpec, ObservationSpec, OccluderGeom, OccluderSpec, SceneError,
                                 SceneSpec, SubjectSpec)
@@ -86,12 +86,37 @@ class DatabaseConfig(_Section):
         return self
 
 
+class StreamConfig(_Section):
+    """Test streams instead of single primitives (``harness.motion.stream``): procedural streams of the
+    database's classes by held-out subjects, or capture takes whose manifest rows label their frames."""
+
+    count: int = Field(10, ge=1, le=10000)                 # procedural: streams per condition and repeat
+    primitives: tuple[int, int] = (3, 6)                   # procedural: primitives per stream, [min, max]
+    transition_s: tuple[float, float] = (0.3, 0.6)         # procedural: a transition's length, [min, max] s
+    takes: tuple[str, ...] | None = None                   # capture: the takes (file stems) to test
+
+    @model_validator(mode="after")
+    def _check(self):
+        lo, hi = self.primitives
+        if not 2 <= lo <= hi:
+            raise ValueError(f"primitives: must be [min, max] with 2 <= min <= max, got {list(self.primitives)}")
+        t_lo, t_hi = self.transition_s
+        if not 0 < t_lo <= t_hi:
+            raise ValueError(f"transition_s: must be [min, max] seconds with 0 < min <= max, got "
+                             f"{list(self.transition_s)}")
+        if self.takes is not None and not self.takes:
+            raise ValueError("takes: empty list")
+        return self
+
+
 class SplitConfig(_Section):
     """Which motions are tested: held-out procedural demos, a split of the capture set, or (``captures``) every
-    capture demonstration against a procedural database (sim-to-real)."""
+    capture demonstration against a procedural database (sim-to-real); or, with ``stream``, streams of several
+    primitives (``docs/streams.md``)."""
 
     demos_per_class: int = Field(2, ge=1, le=1000)  # procedural: held-out demos per class
     split: Literal["heldout", "captures", "leave_one_out", "cross_subject", "all"] = "heldout"
+    stream: StreamConfig | None = None
 
 
 # --- sections generated from the scene's spec types and the engine's TrackerConfig ------------------------
@@ -216,7 +241,7 @@ class Scenario(_Section):
     occluders: OccludersConfig = OccludersConfig()
     observation: ObservationConfig = ObservationConfig()
     engine: EngineConfig = EngineConfig()
-    methods: tuple[str, ...] = Field(default_factory=method_names)
+    methods: tuple[str, ...] = Field(default_factory=default_methods)
     sweep: dict[str, list[Any]] = Field(default_factory=dict)
 
     @field_validator("methods")
@@ -241,6 +266,18 @@ class Scenario(_Section):
         if self.database.with_captures and self.test.split != "captures":
             raise ValueError("database.with_captures: needs test.split 'captures' (a procedural database tested "
                              "on captures)")
+        stream = self.test.stream
+        if stream is not None:
+            if procedural and self.test.split != "heldout":
+                raise ValueError(f"test.split: streams of a procedural database are performed by held-out "
+                                 f"subjects: 'heldout', got {self.test.split!r}")
+            if procedural and stream.takes is not None:
+                raise ValueError("test.stream.takes: capture takes need database.source 'capture'")
+            if not procedural and self.test.split != "leave_one_out":
+                raise ValueError(f"test.split: a capture stream is tested against a database trained without its "
+                                 f"take: 'leave_one_out', got {self.test.split!r}")
+            if not procedural and stream.takes is None:
+                raise ValueError("test.stream.takes: a capture stream scenario lists its takes (file stems)")
         return self
 
     @property
@@ -400,7 +437,10 @@ def _check_size(raw: dict, scenario: Scenario, where: str) -> None:
     n_conditions = math.prod(len(v) for v in scenario.sweep.values())
     repeats = max([scenario.repeats] + list(scenario.sweep.get("repeats", [])))
     per_condition = 1
-    if scenario.database.source == "procedural" and scenario.test.split == "heldout":
+    if scenario.test.stream is not None:
+        stream = scenario.test.stream
+        per_condition = len(stream.takes) if stream.takes is not None else stream.count
+    elif scenario.database.source == "procedural" and scenario.test.split == "heldout":
         demos = max([scenario.test.demos_per_class] + list(scenario.sweep.get("test.demos_per_class", [])))
         per_condition = len(scenario.classes) * demos
     n = n_conditions * repeats * per_condition
@@ -536,6 +576,13 @@ def resolve_capture(scenario: Scenario, mocap_dir: str | Path | None = None) -> 
         if c not in present:
             raise ScenarioError(f"{scenario.name}: database.classes[{i}]: unknown class {c!r} "
                                 f"(valid: {', '.join(present)})")
+    stream = scenario.test.stream
+    if stream is not None:
+        takes = sorted({Path(r.file).stem for r in rows})
+        for i, take in enumerate(stream.takes or ()):
+            if take not in takes:
+                raise ScenarioError(f"{scenario.name}: test.stream.takes[{i}]: no manifest row of take {take!r} "
+                                    f"(takes: {', '.join(takes)})")
     db = scenario.database.model_copy(update={"capture_dir": str(root), "classes": tuple(classes)})
     return scenario.model_copy(update={"database": db})
 

@@ -21,14 +21,23 @@ from harness.evaluation.stats import N_BOOT, bootstrap_ci, mcnemar_exact, wilcox
 from harness.io import write_text_atomic
 
 RECOGNITION = ("correct", "frame_accuracy", "time_to_correct_s", "log_p_true")
+STREAM = ("edit_score", "f1_10", "f1_25", "f1_50", "boundary_delay_s")      # with frame_accuracy: streams
+REPRODUCTION = ("repro_dtw_deg", "repro_dtw_mm", "mean_dtw_deg", "mean_dtw_mm", "repro_beats_mean")
 RECOVERY = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", "pa_mpjpe_mm", "pa_mpjpe17_mm",
             "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m", "base_rot_err_deg", "heading_err_deg",
             "tilt_err_deg", "reproj_px")
 SCENE = ("self_occlusion", "obstacle_occlusion", "n_frames", "mean_flows")
 TIMING = ("ms_per_frame",)
-METRICS = RECOGNITION + RECOVERY + SCENE + TIMING
+METRICS = RECOGNITION + STREAM + RECOVERY + REPRODUCTION + SCENE + TIMING
 HEADLINE = ("correct", "log_p_true", "mpjpe_cam_mm", "pa_mpjpe_mm", "mpjpe_pose_mm", "base_pos_err_m",
             "heading_err_deg", "tilt_err_deg", "angle_rms_deg", "reproj_px")
+STREAM_HEADLINE = ("frame_accuracy", "edit_score", "f1_10", "f1_25", "f1_50", "boundary_delay_s", "mpjpe_cam_mm",
+                   "base_pos_err_m", "heading_err_deg")
+
+
+def is_stream(rows: pd.DataFrame) -> bool:
+    """Whether the rows are of stream runs (scored per frame, ``harness.evaluation.stream_metrics``)."""
+    return "edit_score" in rows.columns
 
 
 def _method_rank(m: str) -> int:
@@ -72,13 +81,19 @@ def summary(rows: pd.DataFrame, swept: list[str], n_boot: int = N_BOOT, seed: in
 
 
 def recognising(rows: pd.DataFrame) -> pd.DataFrame:
-    """The rows of methods that recognise (a registered method without recognition has no class rows)."""
-    return rows[[produces(m, "correct") for m in rows["method"]]] if len(rows) else rows
+    """The rows of methods that recognise one class per run (a registered method without recognition has no class
+    rows; stream runs have none either)."""
+    if not len(rows) or is_stream(rows):
+        return rows.iloc[0:0]
+    return rows[[produces(m, "correct") for m in rows["method"]]]
 
 
 def per_class(rows: pd.DataFrame) -> pd.DataFrame:
     """Recognition per condition, method and true class: runs, accuracy, frame accuracy, time to correct (s);
     methods that recognise only."""
+    if not len(recognising(rows)):
+        return pd.DataFrame(columns=["condition", "method", "class_true", "runs", "accuracy", "frame_accuracy",
+                                     "time_to_correct_s"])
     g = recognising(rows).groupby(["condition", "method", "class_true"], sort=False)
     out = g.agg(runs=("correct", "size"), accuracy=("correct", "mean"), frame_accuracy=("frame_accuracy", "mean"),
                 time_to_correct_s=("time_to_correct_s", "mean")).reset_index()
@@ -110,8 +125,8 @@ def paired_tests(rows: pd.DataFrame, reference: str = "full") -> pd.DataFrame:
         for other in sorted(set(wide) - {reference}, key=_method_rank):
             o = wide[other]
             common = ref.index.intersection(o.index).sort_values()
-            # A method without recognition (no_database) has no 'correct' to compare.
-            recognises = pd.to_numeric(o.loc[common, "correct"], errors="coerce").notna().any()
+            # A method without recognition (no_database) has no 'correct' to compare, nor has a stream.
+            recognises = "correct" in o and pd.to_numeric(o.loc[common, "correct"], errors="coerce").notna().any()
             if recognises:
                 mc = mcnemar_exact(ref.loc[common, "correct"], o.loc[common, "correct"])
                 out.append({"condition": cond, "comparison": f"{reference} vs {other}", "test": "McNemar (exact)",
@@ -132,7 +147,7 @@ def pooled_metrics(rows: pd.DataFrame) -> dict[str, float]:
     """``{"<method>/<metric>": mean over every run of every condition}``: what ``harness regress`` compares."""
     out = {}
     for method, g in rows.groupby("method"):
-        for metric in RECOGNITION + RECOVERY + TIMING:
+        for metric in RECOGNITION + STREAM + RECOVERY + REPRODUCTION + TIMING:
             if metric in g:
                 x = pd.to_numeric(g[metric], errors="coerce").to_numpy(dtype=float)
                 x = x[np.isfinite(x)]
@@ -213,6 +228,11 @@ def worst_runs(rows: pd.DataFrame, method: str = "full", n: int = 3) -> pd.DataF
     g = rows[rows["method"] == method] if len(rows) else rows
     if not len(g):
         return pd.DataFrame(columns=cols)
+    if is_stream(g):        # streams: the lowest frame accuracy, then the lowest F1@25
+        cols = ["run_key", "condition", "frame_accuracy", "edit_score", "f1_25", "boundary_delay_s", "mpjpe_cam_mm"]
+        key = g.assign(_a=pd.to_numeric(g["frame_accuracy"], errors="coerce").fillna(-np.inf),
+                       _f=pd.to_numeric(g["f1_25"], errors="coerce").fillna(-np.inf))
+        return key.sort_values(["_a", "_f", "run_key"], kind="stable").head(n)[cols].reset_index(drop=True)
     key = g.assign(_c=pd.to_numeric(g["correct"], errors="coerce").fillna(0.0),
                    _l=pd.to_numeric(g["log_p_true"], errors="coerce").fillna(-np.inf),
                    _e=-pd.to_numeric(g["mpjpe_cam_mm"], errors="coerce").fillna(np.inf))
@@ -228,8 +248,13 @@ def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], clas
     out_dir = Path(out_dir)
     summ = summary(rows, swept, n_boot, seed)
     timing = summ[summ["metric"].isin(TIMING)] if len(summ) else summ
-    tables = {"summary": summ, "headline": headline(summ, swept), "per_class": per_class(rows),
-              "paired_tests": paired_tests(rows), "timing": headline(timing, swept, TIMING),
+    if "repro_dtw_deg" in rows:         # reproduction columns next to the others
+        head = tuple(dict.fromkeys(REPRODUCTION + (STREAM_HEADLINE if is_stream(rows) else HEADLINE)))
+    else:
+        head = STREAM_HEADLINE if is_stream(rows) else HEADLINE
+    tables = {"summary": summ, "headline": headline(summ, swept, head),
+              "per_class": per_class(rows), "paired_tests": paired_tests(rows),
+              "timing": headline(timing, swept, TIMING),
               "accuracy_over_time": accuracy_over_time(rows), "worst_runs": worst_runs(rows)}
     conf = confusion(rows, classes)
     long = [{"condition": c, "method": m, "true": t, "predicted": p, "count": int(mat.loc[t, p])}
