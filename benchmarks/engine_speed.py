@@ -66,6 +66,7 @@ def _reference_times(commit: str, db_path: Path, obs_paths: list[Path], particle
 def main() -> None:
     from harness.body import BodyModel
     from harness.engine import MotionDatabase, Tracker, TrackerConfig
+    from harness.engine.config import settings_from_strings
     from harness.engine.database import CYCLIC_PRIMITIVES
     from harness.motion.performer import CLASSES, demonstrations
     from harness.scene import CameraSpec, MarkerSpec, ObservationSpec, OccluderSpec, SceneSpec
@@ -77,6 +78,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=150)
     ap.add_argument("--reference", default=DEFAULT_REFERENCE, help="git commit of the reference engine "
                                                                    "('none' to skip it)")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="engine settings of this engine")
     args = ap.parse_args()
     body = BodyModel.load()
     rng = np.random.default_rng(0)
@@ -93,8 +95,8 @@ def main() -> None:
             obs_paths.append(Path(tmp) / f"obs{i}.npz")
             obs.save(obs_paths[-1])
         t0 = time.perf_counter()
-        tracker = Tracker(db, body, TrackerConfig(particles=args.particles, model_points=args.points),
-                          rng=np.random.default_rng(1))
+        tracker = Tracker(db, body, TrackerConfig(particles=args.particles, model_points=args.points,
+                                                  **settings_from_strings(args.set)), rng=np.random.default_rng(1))
         print(f"database transform (once): {1e3 * (time.perf_counter() - t0):.0f} ms for "
               f"{db.means_.shape[0] * db.means_.shape[1]} states x {args.points} points")
         tracker.run(clips[0])

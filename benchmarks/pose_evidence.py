@@ -46,26 +46,8 @@ def _one(job) -> dict:
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, **evidence}
 
 
-def _settings(items: list[str]) -> dict:
-    """``KEY=VALUE`` pairs typed by the TrackerConfig field they name."""
-    from harness.engine import TrackerConfig
-
-    default, out = TrackerConfig(), {}
-    for item in items:
-        key, _, value = item.partition("=")
-        if not hasattr(default, key):
-            raise SystemExit(f"--set {item}: TrackerConfig has no field {key!r}")
-        kind = type(getattr(default, key))
-        if kind is bool:
-            out[key] = value.lower() in ("1", "true", "yes")
-        elif kind is tuple:
-            out[key] = tuple(float(v) for v in value.split(",") if v)
-        else:
-            out[key] = kind(value)
-    return out
-
-
 def main() -> None:
+    from harness.engine.config import settings_from_strings
     from harness.evaluation.runner import plan
     from harness.evaluation.scenario import load_scenario
 
@@ -93,7 +75,7 @@ def main() -> None:
         runs = [r for rs in by_cond.values() for r in
                 sorted((rs[i] for i in pick.choice(len(rs), min(args.limit, len(rs)), replace=False)),
                        key=lambda r: r.key)]
-    overrides = _settings(args.set)
+    overrides = settings_from_strings(args.set)
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
         rows = list(pool.map(_one, [(r, overrides) for r in runs]))

@@ -88,3 +88,25 @@ class TrackerConfig:
     @property
     def n_tracks(self) -> int:
         return 1 + len(self.track_turns) + int(self.twin_track)
+
+
+def settings_from_strings(items: list[str]) -> dict:
+    """``["key=value", ...]`` (a command line's engine settings) as TrackerConfig keyword arguments, each value
+    typed by its field's default; raises EngineError naming an unknown key or a malformed value."""
+    default, out = TrackerConfig(), {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not hasattr(default, key):
+            raise EngineError(f"engine setting {item!r}: expected KEY=VALUE with a TrackerConfig field as KEY")
+        kind = type(getattr(default, key))
+        try:
+            if kind is bool:
+                out[key] = {"true": True, "1": True, "yes": True, "false": False, "0": False, "no": False}[value.lower()]
+            elif kind is tuple:
+                out[key] = tuple(float(v) for v in value.split(",") if v)
+            else:
+                out[key] = kind(value)
+        except (KeyError, ValueError):
+            raise EngineError(f"engine setting {key}: cannot read {value!r} as {kind.__name__}") from None
+    return out
+

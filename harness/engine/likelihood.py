@@ -35,9 +35,11 @@ def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var
     """The non-zero Gaussian densities of flows under the points of one hypothesis (position and velocity,
     the observation noise ``pos_var``/``vel_var`` added to each covariance): ``vals[k]`` for flow ``rows[k]``
     and point ``cols[k]``; a pair beyond the position gate, or an invisible point, has none. Returns the count.
-    """
-    M = flows.shape[0]
+
+    ``flows`` are sorted by ``u``: a pair within the gate has ``du^2 <= gate * S_uu`` (the Mahalanobis distance
+    is at least that of ``u`` alone), so each point scans only the flows in that band of columns."""
     P = pix.shape[0]
+    us = flows[:, 0]
     n = 0
     for p in range(P):
         if visibility[p] <= 0.0:
@@ -50,7 +52,8 @@ def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var
         ja, jb, jc = fc / det_f, -fb / det_f, fa / det_f
         log_norm = -2.0 * np.log(2.0 * np.pi) - 0.5 * (np.log(det_p) + np.log(det_f))
         u0, v0, du0, dv0 = pix[p, 0], pix[p, 1], flow[p, 0], flow[p, 1]
-        for m in range(M):
+        reach = np.sqrt(_GATE * a)
+        for m in range(np.searchsorted(us, u0 - reach), np.searchsorted(us, u0 + reach, side="right")):
             x = flows[m, 0] - u0
             y = flows[m, 1] - v0
             d2 = ia * x * x + 2.0 * ib * x * y + ic * y * y
@@ -188,8 +191,12 @@ def flow_log_likelihoods(flows: np.ndarray, img: ImageDistributions, noise_px: f
     the mixture weights of the model points to the flows (``smoothing``: pseudo-flows spread by visibility),
     except for ``held`` points ``(H, P)`` bool, whose weights keep their prior proportions.
     """
-    return _flow_loglik_kernel(*_packed(flows, img, noise_px, fps, width, height, outlier_prob, max_flow, held),
-                               int(weight_iterations), float(smoothing))
+    args = _packed(flows, img, noise_px, fps, width, height, outlier_prob, max_flow, held)
+    order = np.argsort(args[0][:, 0], kind="stable")
+    out = np.empty((img.visibility.shape[0], len(order)))
+    out[:, order] = _flow_loglik_kernel(np.ascontiguousarray(args[0][order]), *args[1:], int(weight_iterations),
+                                        float(smoothing))
+    return out
 
 
 def tempered(per_flow: np.ndarray, n_eff: float) -> np.ndarray:
@@ -209,5 +216,8 @@ def responsibilities(flows: np.ndarray, img: ImageDistributions, noise_px: float
     (rows sum to one minus the flow's outlier probability), under the same gate, visibility and adapted
     weights as ``flow_log_likelihoods`` (the same kernel code)."""
     args = _packed(flows, img, noise_px, fps, width, height, outlier_prob, max_flow, held)
-    return _responsibilities_kernel(args[0], *(a[0] for a in args[1:7]), *args[7:], int(weight_iterations),
-                                    float(smoothing))
+    order = np.argsort(args[0][:, 0], kind="stable")
+    out = np.empty((len(order), img.visibility.shape[1]))
+    out[order] = _responsibilities_kernel(np.ascontiguousarray(args[0][order]), *(a[0] for a in args[1:7]),
+                                          *args[7:], int(weight_iterations), float(smoothing))
+    return out
