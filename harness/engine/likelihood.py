@@ -113,15 +113,31 @@ def _mixture(rows, cols, vals, n, visibility, held, p_in, p_out, iterations, smo
 
 
 @numba.njit(cache=True)
+def _work(M, P):
+    """Work arrays of one hypothesis: the sparse densities (rows, cols, vals) and the weights, masses and
+    inlier densities of ``_mixture``."""
+    return (np.empty(M * P, dtype=np.int64), np.empty(M * P, dtype=np.int64), np.empty(M * P), np.empty(P),
+            np.empty(P), np.empty(M))
+
+
+@numba.njit(cache=True)
+def _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, p_in, p_out,
+                weight_iterations, smoothing, work):
+    """The densities and the adapted mixture of one hypothesis, in ``work``; returns the number of densities."""
+    rows, cols, vals, weight, mass, total = work
+    n = _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, rows, cols, vals)
+    _mixture(rows, cols, vals, n, visibility, held, p_in, p_out, weight_iterations, smoothing, weight, mass, total)
+    return n
+
+
+@numba.njit(cache=True)
 def _flow_loglik_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in, log_out,
                         weight_iterations, smoothing):
     H, P = visibility.shape
     M = flows.shape[0]
     out = np.empty((H, M))
-    rows = np.empty(M * P, dtype=np.int64)
-    cols = np.empty(M * P, dtype=np.int64)
-    vals = np.empty(M * P)
-    weight, mass, total = np.empty(P), np.empty(P), np.empty(M)
+    work = _work(M, P)
+    total = work[5]
     p_in = np.exp(log_in)
     p_out = np.exp(log_out)
     for h in range(H):
@@ -129,10 +145,8 @@ def _flow_loglik_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, held, p
             for m in range(M):
                 out[h, m] = log_out
             continue
-        n = _densities(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], pos_var, vel_var,
-                       rows, cols, vals)
-        _mixture(rows, cols, vals, n, visibility[h], held[h], p_in, p_out, weight_iterations, smoothing, weight, mass,
-                 total)
+        _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], held[h], pos_var, vel_var, p_in,
+                    p_out, weight_iterations, smoothing, work)
         for m in range(M):
             if total[m] > 0.0:
                 inlier = log_in + np.log(total[m])
@@ -151,14 +165,12 @@ def _responsibilities_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, he
     resp = np.zeros((M, P))
     if visibility.sum() <= 0.0:
         return resp
-    rows = np.empty(M * P, dtype=np.int64)
-    cols = np.empty(M * P, dtype=np.int64)
-    vals = np.empty(M * P)
-    weight, mass, total = np.empty(P), np.empty(P), np.empty(M)
+    work = _work(M, P)
+    rows, cols, vals, weight, _, total = work
     p_in = np.exp(log_in)
     p_out = np.exp(log_out)
-    n = _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, rows, cols, vals)
-    _mixture(rows, cols, vals, n, visibility, held, p_in, p_out, weight_iterations, smoothing, weight, mass, total)
+    n = _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, p_in, p_out,
+                    weight_iterations, smoothing, work)
     for k in range(n):
         m, p = rows[k], cols[k]
         resp[m, p] = p_in * weight[p] * vals[k] / (p_in * total[m] + p_out)

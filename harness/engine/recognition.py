@@ -96,9 +96,11 @@ class Recognizer:
         return p / p.sum()
 
 
-def recognize_features(db: MotionDatabase, features: np.ndarray, start_spread: float = 0.05) -> np.ndarray:
-    """Joint-space recognition (the upper-bound baseline): class posteriors ``(T, C)`` from true features."""
-    rec = Recognizer(db, start_spread=start_spread, prune=0.0)
+def recognize_features(db: MotionDatabase, features: np.ndarray, start_spread: float = 0.05,
+                       recognizer: Recognizer | None = None) -> np.ndarray:
+    """Joint-space recognition (the upper-bound baseline): class posteriors ``(T, C)`` from true features, by
+    ``recognizer`` (default: a fresh ``Recognizer`` without pruning)."""
+    rec = recognizer if recognizer is not None else Recognizer(db, start_spread=start_spread, prune=0.0)
     log_b = db.log_emissions(features)
     out = np.empty((len(log_b), db.n_classes))
     for t in range(len(log_b)):

@@ -34,7 +34,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from harness.engine.database import MotionDatabase
-from harness.engine.recognition import Recognizer
+from harness.engine.recognition import Recognizer, recognize_features
 from harness.errors import EngineError
 
 
@@ -108,14 +108,8 @@ class SwitchingRecognizer(Recognizer):
 def recognize_stream_features(db: MotionDatabase, features: np.ndarray, switch: float,
                               start_spread: float = 0.05) -> np.ndarray:
     """Joint-space recognition over a stream (the upper-bound baseline): class posteriors ``(T, C)``."""
-    rec = SwitchingRecognizer(db, switch, start_spread=start_spread, prune=0.0)
-    log_b = db.log_emissions(features)
-    out = np.empty((len(log_b), db.n_classes))
-    for t in range(len(log_b)):
-        rec.predict()
-        rec.update(log_b[t])
-        out[t] = rec.class_posterior
-    return out
+    return recognize_features(db, features, recognizer=SwitchingRecognizer(db, switch, start_spread=start_spread,
+                                                                           prune=0.0))
 
 
 def online_labels(class_posterior: np.ndarray, min_frames: int) -> np.ndarray:

@@ -92,12 +92,7 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
                         or Path(f).stem == "accuracy_vs_measured_occlusion")
     if swept_plots:
         parts += ["## Against the swept keys\n", *_section_plots(figures, swept_plots)]
-    parts += ["## Scenario\n", "```yaml\n" + yaml.safe_dump(scenario.model_dump(mode="json"), sort_keys=False)
-              + "```\n",
-              "## Timing (reported, not part of identity checks)\n", markdown(tables["timing"])]
-    path = results_dir / "report.md"
-    write_text_atomic(path, "\n".join(parts))
-    return path
+    return _finish(parts, scenario, tables, results_dir)
 
 
 def _stream_report(scenario: Scenario, results_dir: Path, rows: pd.DataFrame, tables: dict, figures: list[str],
@@ -138,13 +133,18 @@ def _stream_report(scenario: Scenario, results_dir: Path, rows: pd.DataFrame, ta
                   "Per run: the true labels (top; transitions grey) and the labels each method recognised online, "
                   "with its frame accuracy and F1@25.\n",
                   *[f"![{Path(f).stem}]({f})\n" for f in timelines]]
-    parts += ["## Scenario\n", "```yaml\n" + yaml.safe_dump(scenario.model_dump(mode="json"), sort_keys=False)
-              + "```\n",
-              "## Timing (reported, not part of identity checks)\n", markdown(tables["timing"])]
-    path = results_dir / "report.md"
-    write_text_atomic(path, "\n".join(parts))
-    return path
+    return _finish(parts, scenario, tables, results_dir)
 
 
 def _video_name(run_key: str) -> str:
     return "run_" + run_key.replace("/", "_") + ".mp4"
+
+
+def _finish(parts: list[str], scenario: Scenario, tables: dict, results_dir: Path) -> Path:
+    """The report's closing sections (the scenario, timing last) and its atomic write; returns its path."""
+    parts = parts + ["## Scenario\n", "```yaml\n" + yaml.safe_dump(scenario.model_dump(mode="json"), sort_keys=False)
+                     + "```\n", "## Timing (reported, not part of identity checks)\n", markdown(tables["timing"])]
+    path = results_dir / "report.md"
+    write_text_atomic(path, "\n".join(parts))
+    return path
+
