@@ -42,6 +42,7 @@ check: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/kinematics.py
 	$(PY) benchmarks/engine_speed.py
+	$(PY) benchmarks/pose_evidence.py
 	$(PY) benchmarks/dask_throughput.py
 
 clean:
