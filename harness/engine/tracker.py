@@ -199,7 +199,7 @@ class Tracker:
         obs.validate()
         if base_pose is not None and (len(base_pose[0]) != len(obs) or len(base_pose[1]) != len(obs)):
             raise EngineError(f"base_pose must have one pose per frame ({len(obs)})")
-        self.reset(obs.intrinsics, obs.fps, rng)
+        self.reset(obs.intrinsics, obs.fps, rng, camera_moves=obs.camera_motion is not None)
         for t, flows in enumerate(obs.flows):
             cam = None if obs.camera_motion is None else obs.camera_motion[t]
             self.step(flows, cam, None if base_pose is None else (base_pose[0][t], base_pose[1][t]),
@@ -209,15 +209,17 @@ class Tracker:
                 progress(t)
         return self.result()
 
-    def reset(self, intr: Intrinsics, fps: float, rng: np.random.Generator | None = None) -> None:
+    def reset(self, intr: Intrinsics, fps: float, rng: np.random.Generator | None = None,
+              camera_moves: bool = False) -> None:
+        """Start a sequence seen through ``intr`` at ``fps``; ``camera_moves``: the camera is not static (its
+        image remembers no region of past flows)."""
         if not fps > 0:
             raise EngineError(f"fps must be positive, got {fps}")
-        cfg = self.config
         self.intr, self.fps = intr, float(fps)
         self._rng = rng if rng is not None else self.rng
         self._gravity: np.ndarray | None = None
         self._height: float | None = None
-        self._open: OpenRegion | None = None
+        self._open = open_region(self.config, intr, self.fps, camera_moves)
         self.tracks: list[Track] = []
         self._rows: list[tuple] = []
         self._pending: list = []      # given poses (or None) of frames before the first flows
@@ -232,9 +234,7 @@ class Tracker:
         flows = np.asarray(flows, dtype=float).reshape(-1, 4)
         self._gravity = None if gravity is None else np.asarray(gravity, dtype=float)
         self._height = camera_height
-        if self._open is None:
-            self._open = open_region(self.config, self.intr, self.fps, camera_motion is not None) or False
-        if self._open:
+        if self._open is not None:
             self._open.update(flows)
         t0 = time.perf_counter()
         clock = [t0]
@@ -359,7 +359,7 @@ class Tracker:
         return ProcessNoise(cfg.position_noise, cfg.rotation_noise, cfg.tilt_noise, -self._gravity)
 
     def _flow_ll(self, flows: np.ndarray, img) -> np.ndarray:
-        return flow_log_likelihood_matrix(self.config, flows, img, self.fps, self.intr, self._open or None)
+        return flow_log_likelihood_matrix(self.config, flows, img, self.fps, self.intr, self._open)
 
     def _weigh(self, flows: np.ndarray, camera_motion: np.ndarray | None) -> None:
         """Every track's particles under its own belief (a mixture over its likely primitives), all tracks and
@@ -396,7 +396,7 @@ class Tracker:
         for track in self.tracks:
             pos, quat = track.estimate
             track.log_evidence += recognise_at(self.model, self.config, track.recognizer, flows, self.intr,
-                                               self.fps, pos, quat, camera_motion, self._open or None)
+                                               self.fps, pos, quat, camera_motion, self._open)
 
     def _recover(self, flows: np.ndarray, camera_motion: np.ndarray | None, fixed: bool) -> None:
         """Recovery for the ``recover_tracks`` tracks with the most evidence; the others keep their belief's
@@ -411,7 +411,7 @@ class Tracker:
             angles, pos_r, rot_r = recover(self.model, flows if refine else flows[:0], self.intr, self.fps,
                                            track.best_state_belief(), pos, geometry.to_matrix(quat),
                                            np.maximum(track.spread, 1e-6), cfg, camera_motion, fix_pose=fixed,
-                                           occlusion=occlusion(self.model, cfg), open_region=self._open or None)
+                                           occlusion=occlusion(self.model, cfg), open_region=self._open)
             track.recovered = Recovered(angles, pos_r, rot_r, refined=refine)
 
     def _manage(self) -> None:
