@@ -275,8 +275,8 @@ class Tracker:
         return Recognizer(self.model.db, self.config.start_spread, self.config.prune)
 
     def _start(self, flows: np.ndarray, camera_motion: np.ndarray | None, pose) -> None:
-        """Spawn the tracks from the first frame with flows: a wide cloud narrowed by this frame's flows gives
-        the leading pose; the other tracks are its turns about the body's vertical and its twin."""
+        """The first frame with flows: a wide cloud over the coarse prior, weighed by this frame's flows, from
+        which the tracks are spawned (one track at the pose when it is given)."""
         cfg, rng = self.config, self._rng
         if pose is not None:
             pos, quat = np.asarray(pose[0], float)[None], np.asarray(pose[1], float)[None]
@@ -294,11 +294,18 @@ class Tracker:
         coarse = tempered(self._flow_ll(flows, blob), cfg.n_eff_filter)
         wide = wide.take(np.argsort(coarse)[::-1][:int(round(cfg.init_keep * n_wide))])
         wide.reweight(self._class_mixture_log_likelihood(flows, wide, camera_motion))
+        self.tracks = self._spawn(wide)
+
+    def _spawn(self, wide: ParticleCloud) -> list[Track]:
+        """The tracks of a weighted first cloud: its heaviest orientation mode (the lead), the lead's turns
+        about the body's vertical, and its twin, each with an equal share of the particles."""
+        cfg, rng = self.config, self._rng
         _, lead = wide.estimate()
         spawn = [("lead", lead)] + [(f"turn{a:+g}", turned(lead[None], np.deg2rad(a))[0]) for a in cfg.track_turns]
         if cfg.twin_track:
             spawn.append(("twin", twin(lead[None], self._gravity)[0]))
         n_each = cfg.particles // len(spawn)
+        tracks = []
         for origin, centre in spawn:
             # The wide cloud's own particles near the track's orientation carry positions that fit it; where
             # too few are there, the lead's particles turned to it stand in.
@@ -311,7 +318,8 @@ class Tracker:
                 cloud = wide.take(systematic_resample(np.where(lead_near, wide.weights, 0.0), rng, n_each))
                 rel = geometry.multiply(geometry.conjugate(lead), centre)     # lead -> centre, body frame
                 cloud.quats = geometry.multiply(cloud.quats, np.broadcast_to(rel, cloud.quats.shape))
-            self.tracks.append(Track(cloud, self._new_recognizer(), origin))
+            tracks.append(Track(cloud, self._new_recognizer(), origin))
+        return tracks
 
     def _class_mixture_log_likelihood(self, flows: np.ndarray, cloud: ParticleCloud,
                                       camera_motion: np.ndarray | None) -> np.ndarray:
