@@ -124,6 +124,8 @@ def test_headline_says_given_and_dash_and_rounds_to_three_figures(rows):
     assert nd["correct"] == "–" and nd["log_p_true"] == "–" and nd["base_pos_err_m"] == "given"
     assert gb["heading_err_deg"] == "given" and gb["correct"] != "–"
     assert full["base_pos_err_m"] not in ("given", "–") and nd["runs"] == 6
+    timing = tables.headline(summ, ["markers.count", "occluders.amount"], tables.TIMING)
+    assert (timing["runs"] == head["runs"]).all() and nd["runs"] == 6
     assert tables._fmt(0.0004331) == "0.000433" and tables._fmt(1.189e-15) == "1.19e-15" and tables._fmt(103.4) == "103"
 
 
