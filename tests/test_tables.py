@@ -146,3 +146,15 @@ def test_worst_runs_are_wrong_first_then_least_sure(rows):
     right = full[full["correct"] == 1].sort_values("log_p_true")
     assert 0 < len(wrong) < 3
     assert list(worst["run_key"]) == (list(wrong["run_key"]) + list(right["run_key"]))[:3]
+
+
+def test_a_report_without_recognition_has_no_recognition_sections(rows, tmp_path):
+    """A scenario whose methods do not recognise (reproduction alone, or here no_database) gets no empty
+    recognition, confusion or paired-test sections; the full rows get all three."""
+    scenario = parse_scenario(TINY)
+    alone = make_report(scenario, tmp_path / "alone", rows[rows["method"] == "no_database"], plots=False).read_text()
+    whole = make_report(scenario, tmp_path / "whole", rows, plots=False).read_text()
+    for section in ("## Recognition against time", "## Recognition per class", "## Confusion matrices",
+                    "## Paired tests"):
+        assert section not in alone and section in whole
+    assert "## Headline" in alone and "no_database" in alone

@@ -12,7 +12,7 @@ import yaml
 from harness.evaluation.plots import write_plots
 from harness.evaluation.runner import load_rows
 from harness.evaluation.scenario import Scenario, scenario_hash
-from harness.evaluation.tables import is_stream, markdown, write_tables
+from harness.evaluation.tables import is_stream, markdown, recognising, write_tables
 from harness.io import write_text_atomic
 
 
@@ -63,14 +63,18 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
         f"significant figures; `correct` is the final recognition accuracy (0-1); `given`: the method is handed "
         f"that quantity; `–`: the method does not produce it. Scenario hash `{digest}`.\n",
         markdown(tables["headline"]),
-        "## Recognition against time since the start of the motion\n",
-        "Fraction of runs whose current most probable class is the true one, at ten evenly spaced instants of "
-        "each clip (0 = first frame, 1 = last).\n",
-        *_section_plots(figures, ("accuracy_over_time",)),
-        "## Recognition per class\n",
-        *_section_plots(figures, ("class_accuracy",)),
-        "(numbers in `per_class.csv`)\n",
     ]
+    recognises = len(recognising(rows)) > 0    # a scenario of reproduction alone has no recognition sections
+    if recognises:
+        parts += [
+            "## Recognition against time since the start of the motion\n",
+            "Fraction of runs whose current most probable class is the true one, at ten evenly spaced instants of "
+            "each clip (0 = first frame, 1 = last).\n",
+            *_section_plots(figures, ("accuracy_over_time",)),
+            "## Recognition per class\n",
+            *_section_plots(figures, ("class_accuracy",)),
+            "(numbers in `per_class.csv`)\n",
+        ]
     worst = tables["worst_runs"]
     if len(worst):
         parts += ["## The three worst runs of `full`\n",
@@ -79,15 +83,19 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
                   markdown(worst), "```bash\n" + "".join(
                       f"python -m harness run-video {results_dir} {k} --out {_video_name(k)}\n"
                       for k in worst["run_key"]) + "```\n"]
-    parts += [
-        "## Paired tests (same runs)\n",
-        "Exact McNemar test on final recognition and Wilcoxon signed-rank test on camera-frame MPJPE "
-        "(protocol 1), `full` against each other method within each condition.\n",
-        markdown(tables["paired_tests"]),
-        "## Confusion matrices (methods that recognise, all conditions)\n",
-        *_section_plots(figures, tuple(Path(f).stem for f in figures if Path(f).stem.startswith("confusion_"))),
-        "(counts per condition in `confusion.csv`)\n",
-    ]
+    if len(tables["paired_tests"]):
+        parts += [
+            "## Paired tests (same runs)\n",
+            "Exact McNemar test on final recognition and Wilcoxon signed-rank test on camera-frame MPJPE "
+            "(protocol 1), `full` against each other method within each condition.\n",
+            markdown(tables["paired_tests"]),
+        ]
+    if recognises:
+        parts += [
+            "## Confusion matrices (methods that recognise, all conditions)\n",
+            *_section_plots(figures, tuple(Path(f).stem for f in figures if Path(f).stem.startswith("confusion_"))),
+            "(counts per condition in `confusion.csv`)\n",
+        ]
     swept_plots = tuple(Path(f).stem for f in figures if Path(f).stem.startswith("vs_")
                         or Path(f).stem == "accuracy_vs_measured_occlusion")
     if swept_plots:
