@@ -52,6 +52,10 @@ def main() -> int:
     scenario = load_scenario(args.scenario)
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
+        planned = len(plan(scenario, root / "cache"))
+        if args.runs > planned:     # the runner stops at the plan's end: a rate over args.runs would be inflated
+            print(f"{args.scenario} plans {planned} runs: timing {planned}, not {args.runs}")
+            args.runs = planned
         pipeline.database(scenario, None, root / "cache")      # procedural: one database for every run
         rpm = {n: runs_per_minute(scenario, n, args.runs, root) for n in (1, 2)}
     eff = rpm[2] / (2.0 * rpm[1])
