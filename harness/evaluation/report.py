@@ -69,7 +69,8 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
         parts += [
             "## Recognition against time since the start of the motion\n",
             "Fraction of runs whose current most probable class is the true one, at ten evenly spaced instants of "
-            "each clip (0 = first frame, 1 = last).\n",
+            "each clip (0 = first frame, 1 = last). An offline method (`full_smoothed`) decides once, at the "
+            "end, so its line is flat by construction.\n",
             *_section_plots(figures, ("accuracy_over_time",)),
             "## Recognition per class\n",
             *_section_plots(figures, ("class_accuracy",)),
