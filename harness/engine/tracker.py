@@ -27,13 +27,12 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 from scipy.special import softmax
 
-from harness.engine.logsum import logsumexp
-
 from harness import geometry
 from harness.body.model import BodyModel
 from harness.engine.config import TrackerConfig
 from harness.engine.database import MotionDatabase
 from harness.engine.likelihood import flow_log_likelihoods, tempered
+from harness.engine.logsum import logsumexp
 from harness.engine.model import EngineModel
 from harness.engine.open_region import OpenRegion
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,

@@ -49,9 +49,12 @@ def _pyplot():
 
 
 def _save(fig, path: Path) -> None:
+    """Lay the figure out, write it as PNG (atomically) and close it."""
     from harness.io import write_atomic
 
+    fig.tight_layout()
     write_atomic(path, lambda fh: fig.savefig(fh, format="png", dpi=100, metadata={"Software": None}))
+    _pyplot().close(fig)
 
 
 def _numeric(values) -> bool:
@@ -102,9 +105,7 @@ def plot_against(rows: pd.DataFrame, key: str, path: Path, seed: int = 0) -> boo
         ax.set_ylabel(LABELS.get(metric, metric))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)   # per panel: methods without a metric are absent from its panel
-    fig.tight_layout()
     _save(fig, path)
-    plt.close(fig)
     return True
 
 
@@ -127,9 +128,7 @@ def plot_measured_occlusion(rows: pd.DataFrame, path: Path) -> bool:
     ax.set_ylim(-0.02, 1.02)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
     _save(fig, path)
-    plt.close(fig)
     return True
 
 
@@ -149,9 +148,7 @@ def plot_confusion(matrix: pd.DataFrame, title: str, path: Path) -> None:
     ax.set_xlabel("predicted")
     ax.set_ylabel("true")
     ax.set_title(title, fontsize=9)
-    fig.tight_layout()
     _save(fig, path)
-    plt.close(fig)
 
 
 def plot_class_heatmap(per_class: pd.DataFrame, classes: list[str], path: Path) -> bool:
@@ -173,9 +170,7 @@ def plot_class_heatmap(per_class: pd.DataFrame, classes: list[str], path: Path) 
     ax.set_xticks(range(len(cols)), labels, rotation=60, ha="right", fontsize=7)
     ax.set_yticks(range(len(classes)), classes, fontsize=8)
     ax.set_title("final recognition accuracy per class", fontsize=9)
-    fig.tight_layout()
     _save(fig, path)
-    plt.close(fig)
     return True
 
 
@@ -198,9 +193,7 @@ def plot_accuracy_over_time(curve: pd.DataFrame, path: Path) -> bool:
     ax.set_ylim(-0.02, 1.02)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
-    fig.tight_layout()
     _save(fig, path)
-    plt.close(fig)
     return True
 
 
@@ -248,9 +241,7 @@ def plot_timeline(run_rows: pd.DataFrame, classes: list[str], fps: float, path: 
     ax.set_xlim(0, end / fps)
     ax.set_xlabel("time (s)")
     ax.set_title(f"{run_rows.iloc[0]['run_key']}: true labels (top) and recognised labels", fontsize=9)
-    fig.tight_layout()
     _save(fig, path)
-    plt.close(fig)
     return True
 
 
