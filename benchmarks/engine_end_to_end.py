@@ -18,7 +18,7 @@ import numpy as np
 from harness import geometry
 from harness.body import BodyModel
 from harness.engine import MotionDatabase, Tracker, TrackerConfig, motion_features, recognize_features
-from harness.engine.database import CYCLIC_PRIMITIVES
+from harness.motion.performer import CYCLIC
 from harness.evaluation.metrics import mpjpe_pose_mm
 from harness.motion.performer import CLASSES, demonstrations
 from harness.scene import CameraSpec, MarkerSpec, ObservationSpec, OccluderSpec, SceneSpec
@@ -44,7 +44,7 @@ def main() -> None:
     train_rng = np.random.default_rng(1000)
     train = [m for c in CLASSES for m in
              (demonstrations(c, 1, train_rng, subject=int(s))[0] for s in range(args.train))]
-    db = MotionDatabase(n_states=args.states, cyclic=CYCLIC_PRIMITIVES).fit(train)
+    db = MotionDatabase(n_states=args.states, cyclic=CYCLIC).fit(train)
     print(f"database: {len(train)} demos, {time.perf_counter() - t0:.1f} s")
     tracker = Tracker(db, body, TrackerConfig(particles=args.particles, **{k: (int(v) if v.isdigit() else float(v)) for k, v in (a.split('=') for a in args.set)}), rng=np.random.default_rng(args.eval_seed))
 

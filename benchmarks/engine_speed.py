@@ -67,7 +67,7 @@ def main() -> None:
     from harness.body import BodyModel
     from harness.engine import MotionDatabase, Tracker, TrackerConfig
     from harness.engine.config import settings_from_strings
-    from harness.engine.database import CYCLIC_PRIMITIVES
+    from harness.motion.performer import CYCLIC
     from harness.motion.performer import CLASSES, demonstrations
     from harness.scene import CameraSpec, MarkerSpec, ObservationSpec, OccluderSpec, SceneSpec
     from harness.scene.simulate import simulate
@@ -83,7 +83,7 @@ def main() -> None:
     body = BodyModel.load()
     rng = np.random.default_rng(0)
     train = [demonstrations(c, 1, rng, subject=s)[0] for c in CLASSES for s in range(6)]
-    db = MotionDatabase(n_states=20, cyclic=CYCLIC_PRIMITIVES).fit(train)
+    db = MotionDatabase(n_states=20, cyclic=CYCLIC).fit(train)
     spec = SceneSpec(MarkerSpec(100, 1), CameraSpec(azimuth=40.0), OccluderSpec(), ObservationSpec(noise_px=1.0))
     clips = [simulate(demonstrations(c, 1, rng, subject=500 + i)[0], spec, rng, body)[0]
              for i, c in enumerate(["walk"] + args.classes)]                  # the first one warms up

@@ -4,7 +4,7 @@
         [--amount 0.0 0.4] [--limit N] [--jobs 2]
 
 For every run of the scenario at the given occlusion amounts, the database's evidence over the whole clip
-(``harness.engine.tracker.path_evidence``: the sum over frames of the forward recursion's normaliser, with the
+(``harness.engine.scoring.path_evidence``: the sum over frames of the forward recursion's normaliser, with the
 engine's own tempering and pruning) is computed along the true baselink path and along its alternatives: the
 same path turned by +90, 180 and -90 degrees about the body's vertical, and its depth-reflected mirrored twin
 (``harness.engine.track.twin``). Prints per run the margin of the truth over each alternative, then the share of
@@ -30,7 +30,7 @@ def _one(job) -> dict:
     run, overrides = job
     from harness.engine.model import EngineModel
     from harness.engine.track import turned, twin
-    from harness.engine.tracker import path_evidence
+    from harness.engine.scoring import path_evidence
     from harness.evaluation import pipeline
     from harness.evaluation.scenario import tracker_config
 

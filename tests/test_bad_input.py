@@ -171,11 +171,11 @@ OBSERVATION_CASES = ("empty", "truncated", "random_bytes", "text", "npy_not_npz"
 
 @pytest.fixture(scope="module")
 def database_file(tmp_path_factory, body):
-    from harness.engine.database import CYCLIC_PRIMITIVES
+    from harness.motion.performer import CYCLIC
     from harness.motion.performer import training_set
 
     path = tmp_path_factory.mktemp("db") / "db.npz"
-    MotionDatabase(n_states=3, cyclic=CYCLIC_PRIMITIVES).fit(training_set(["walk", "squat"], 2, 0, body=body)).save(path)
+    MotionDatabase(n_states=3, cyclic=CYCLIC).fit(training_set(["walk", "squat"], 2, 0, body=body)).save(path)
     return path
 
 

@@ -12,10 +12,10 @@ from engine_fixtures import CLASSES, synthetic_demos
 from harness import geometry
 from harness.body import forward_points, sample_surface
 from harness.engine import MotionDatabase, Recognizer, motion_features, recognize_features
-from harness.engine.likelihood import flow_log_likelihoods, responsibilities, tempered
+from harness.engine.likelihood import FlowModel, flow_log_likelihoods, responsibilities, tempered
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
                                             motion_mean, propose, systematic_resample, upright_orientations)
-from harness.engine.recovery import refine_pose
+from harness.engine.recovery import Prior, refine_pose
 from harness.engine.transform import ImageDistributions, patch_std
 from harness.errors import EngineError
 from harness.pinhole import Intrinsics, project
@@ -136,21 +136,20 @@ def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations,
     flows = np.concatenate([img.pix[0, :M] + rng.normal(0, 3, (M, 2)), rng.normal(0, 30, (M, 2))], axis=1)
     flows[-1, :2] = [5000.0, -300.0]                      # far from every point: an outlier
     noise, fps, W, Hh, eps = 1.5, 30.0, 640, 480, 0.05
-    got = flow_log_likelihoods(flows, img, noise, fps, W, Hh, eps, weight_iterations=iterations,
-                               smoothing=smoothing, held=held)
+    model = FlowModel(noise, fps, W, Hh, eps, weight_iterations=iterations, smoothing=smoothing)
+    got = flow_log_likelihoods(flows, img, model, held=held)
     for h in range(H):
         ll, resp = _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing, held)
         np.testing.assert_allclose(got[h], ll, rtol=1e-9)
         one = ImageDistributions(*(getattr(img, k)[h:h + 1] for k in ("pix", "pix_cov", "flow", "flow_cov",
                                                                         "visibility")))
-        r = responsibilities(flows, one, noise, fps, W, Hh, eps, weight_iterations=iterations, smoothing=smoothing,
-                             held=held[h:h + 1])
+        r = responsibilities(flows, one, model, held=held[h:h + 1])
         np.testing.assert_allclose(r, resp, rtol=1e-9, atol=1e-300)
         assert np.all(r[:, img.visibility[h] == 0] == 0)
     # With every point invisible, every flow is an outlier.
     none = ImageDistributions(img.pix, img.pix_cov, img.flow, img.flow_cov, np.zeros((H, P)))
     vmax = 0.25 * 640 * fps
-    np.testing.assert_allclose(flow_log_likelihoods(flows, none, noise, fps, W, Hh, eps),
+    np.testing.assert_allclose(flow_log_likelihoods(flows, none, FlowModel(noise, fps, W, Hh, eps)),
                                np.log(eps / (W * Hh * np.pi * vmax**2)))
 
 
@@ -197,9 +196,10 @@ def test_mixture_proposal_is_importance_weighted(rng):
                             geometry.exp(rng.normal(0, 0.1, (n_parent, 3))), np.log(rng.dirichlet(np.ones(n_parent))))
     noise = ProcessNoise(0.15, 0.3)
     guide = (np.array([0.3, 0.0, 4.0]), geometry.exp(np.array([0.0, 0.2, 0.0])))
-    bootstrap = propose(parents, 40000, np.zeros(3), np.zeros(3), 1 / 30, noise, rng)
-    guided = propose(parents, 40000, np.zeros(3), np.zeros(3), 1 / 30, noise, rng, guide=guide,
-                     guide_fraction=0.5, guide_std=(np.full(3, 0.1), 0.05))
+    still = dict(base_linear=np.zeros(3), base_angular=np.zeros(3), dt=1 / 30)
+    bootstrap = propose(parents, 40000, noise, rng, **still)
+    guided = propose(parents, 40000, noise, rng, **still, guide=guide, guide_fraction=0.5,
+                     guide_std=(np.full(3, 0.1), 0.05))
     mean_b = bootstrap.weights @ bootstrap.positions
     mean_g = guided.weights @ guided.positions
     np.testing.assert_allclose(mean_g, mean_b, atol=0.005)
@@ -223,8 +223,9 @@ def test_refinement_recovers_a_perturbed_pose(body):
     flows = np.concatenate([project(intr, X), np.zeros((150, 2))], axis=1)
     resp = np.eye(150)
     start = np.clip(theta + rng.normal(0, np.deg2rad(5), 50), body.lower, body.upper)
-    angles, pos_r, rot_r = refine_pose(body, points, intr, flows, resp, start, np.full(50, 1.0), pos + 0.05,
-                                       rot, np.full(3, 1.0), 1.0, 0.5, 0.0, iterations=8)
+    prior = Prior(start, np.full(50, 1.0), pos + 0.05, np.full(3, 1.0), rot, 1.0)
+    got = refine_pose(body, points, intr, flows, resp, prior, noise_px=0.5, spread=0.0, iterations=8)
+    angles, pos_r, rot_r = got.angles, got.position, got.rotation
     q = body.qpos(angles, base_pos=np.zeros(3), base_quat=np.array([1.0, 0, 0, 0]))
     Xr = forward_points(body, q, points.body, points.local, frame="base") @ rot_r.T + pos_r
     assert np.abs(project(intr, Xr) - flows[:, :2]).max() < 0.05

@@ -9,7 +9,7 @@ import numpy as np
 from harness import geometry
 from harness.body import forward_points, sample_surface
 from harness.engine.features import ANGLE_RATES, ANGLES, BASE_ANGULAR, BASE_LINEAR, motion_features
-from harness.engine.transform import state_point_distributions
+from harness.engine.transform import JointGaussians, state_point_distributions
 from harness.motion import Motion
 from harness.motion.motion import velocities_of
 
@@ -27,8 +27,9 @@ def _accelerating(body, turn: float, bend: float, fps=30.0, n=30):
 def _predicted_world_velocity(body, points, features, qpos):
     """The point velocities the engine predicts from features ``(106,)`` at configuration ``qpos``, in the
     world frame (``x' = J theta' + v + w x x`` in the base frame, rotated by the base orientation)."""
-    dist = state_point_distributions(body, features[ANGLES], np.zeros(50), features[ANGLE_RATES], np.zeros(50),
-                                     features[BASE_LINEAR], np.zeros(3), features[BASE_ANGULAR], np.zeros(3), points)
+    dist = state_point_distributions(body, JointGaussians.at(features[ANGLES], features[ANGLE_RATES],
+                                                             base_linear=features[BASE_LINEAR],
+                                                             base_angular=features[BASE_ANGULAR]), points)
     return geometry.rotate(qpos[3:7], dist.vel[0])
 
 

@@ -8,14 +8,16 @@ from engine_fixtures import CLASSES, synthetic_demos, synthetic_observation
 from harness import geometry
 from harness.body import body_origins, sample_surface
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
-from harness.engine.database import CYCLIC_PRIMITIVES
+from harness.motion.performer import CYCLIC
 from harness.engine.likelihood import flow_log_likelihoods, tempered
 from harness.engine.model import EngineModel
 from harness.engine.open_region import OpenRegion
 from harness.engine.particle_filter import camera_pitch, level_world, upright_orientations
 from harness.engine.track import turned, twin
-from harness.engine.tracker import floor_log_prior, occlusion, path_evidence, smooth_trajectory
-from harness.engine.transform import _self_occlusion, patch_std, state_point_distributions, to_image
+from harness.engine.estimate import smooth_trajectory
+from harness.engine.likelihood import FlowModel
+from harness.engine.scoring import Scorer, floor_log_prior, path_evidence
+from harness.engine.transform import JointGaussians, _self_occlusion, patch_std, state_point_distributions, to_image
 from harness.errors import EngineError
 from harness.motion.performer import CLASSES as CLASSES_ALL, perform, training_set
 from harness.motion.primitives import _MIRROR_INDEX, _MIRROR_SIGN
@@ -69,7 +71,7 @@ def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trai
                         int(round(cfg.open_memory_s * obs.fps)))
     alpha, total, first = None, [], True
     for t, flows in enumerate(obs.flows):
-        region.update(flows)
+        mask = region.update(flows)
         if len(flows) == 0 and first:
             total.append(0.0)
             continue
@@ -77,11 +79,12 @@ def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trai
         for c in range(C):
             for k in range(K):
                 img = to_image(obs.intrinsics, geometry.to_matrix(quat[t])[None], pos[t][None],
-                               model.dists.take([c * K + k]), occlusion=occlusion(model, cfg))
-                ll = flow_log_likelihoods(flows, img, cfg.noise_px, obs.fps, obs.intrinsics.width,
-                                          obs.intrinsics.height, cfg.outlier_prob,
-                                          weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing,
-                                          held=region.held(img.pix))
+                               model.dists.take([c * K + k]), occlusion=Scorer(model, cfg).occlusion)
+                ll = flow_log_likelihoods(flows, img, FlowModel(cfg.noise_px, obs.fps, obs.intrinsics.width,
+                                                                obs.intrinsics.height, cfg.outlier_prob,
+                                                                weight_iterations=cfg.weight_iterations,
+                                                                smoothing=cfg.weight_smoothing),
+                                          held=mask.held(img.pix))
                 b[c, k] = tempered(ll, cfg.n_eff_recognition)[0]
         prior = start if first else np.einsum("cj,cjk->ck", alpha, trained.transmat_)
         joint = prior * np.exp(b)
@@ -99,7 +102,7 @@ def test_seen_from_the_front_the_true_heading_beats_its_twin(body, label):
     follows its twin (depth-reflected and mirrored), under a database of all ten primitives. The twin differs
     by perspective and by which parts hide which (the engine's self-occlusion), so this fails if the likelihood
     loses those cues."""
-    db = MotionDatabase(cyclic=CYCLIC_PRIMITIVES).fit(training_set(CLASSES_ALL, 3, seed=0, body=body))
+    db = MotionDatabase(cyclic=CYCLIC).fit(training_set(CLASSES_ALL, 3, seed=0, body=body))
     cfg = TrackerConfig()
     model = EngineModel.build(db, body, cfg.model_points, cfg.model_seed)
     for seed in (0, 1):
@@ -139,8 +142,7 @@ def test_a_limb_in_front_hides_what_is_behind_it(body):
     """A body seen from the side: with self-occlusion the far leg's camera-facing points are mostly hidden by
     the near leg; the facing test alone keeps them."""
     points = sample_surface(body, 300, np.random.default_rng(3))
-    dist = state_point_distributions(body, np.zeros(50), np.zeros(50), np.zeros(50), np.zeros(50), np.zeros(3),
-                                     np.zeros(3), np.zeros(3), np.zeros(3), points, patch_std(body, 300))
+    dist = state_point_distributions(body, JointGaussians.at(np.zeros(50)), points, patch_std(body, 300))
     intr = Intrinsics.from_fov(45.0, 640, 480)
     quat = upright_orientations(np.array([np.pi / 2]), camera_pitch(0.0))     # the body's left side to the camera
     rot, pos = geometry.to_matrix(quat), np.array([[0.0, 0.0, 4.0]])

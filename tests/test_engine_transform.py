@@ -6,7 +6,7 @@ import pytest
 from harness import geometry
 from harness.body import forward_points, point_jacobians, point_velocities, sample_surface
 from harness.engine.particle_filter import camera_pitch, upright_orientations
-from harness.engine.transform import state_point_distributions, to_image
+from harness.engine.transform import JointGaussians, state_point_distributions, to_image
 from harness.pinhole import Intrinsics, project
 
 
@@ -30,8 +30,8 @@ def monte_carlo(body):
     rate_std = np.full(50, 0.3)
     v, v_std = np.array([1.0, 0.1, 0.0]), np.full(3, 0.1)
     w, w_std = np.array([0.1, 0.0, 0.5]), np.full(3, 0.1)
-    dist = state_point_distributions(body, theta, theta_std**2, rate, rate_std**2, v, v_std**2, w, w_std**2,
-                                     points, spread=0.0)
+    dist = state_point_distributions(body, JointGaussians(theta, theta_std**2, rate, rate_std**2, v, v_std**2, w,
+                                                          w_std**2), points, spread=0.0)
     n = 3000
     thetas = theta + rng.normal(0.0, 1.0, (n, 50)) * theta_std
     qpos = np.zeros((n, 57))
@@ -80,8 +80,9 @@ def test_jdot_term_matters(monte_carlo):
 
 def _h_term(body, theta, points, dist):
     """The full ``H S_theta H^T`` term, recovered as vel_cov minus the other (theta-independent) terms."""
-    no_theta = state_point_distributions(body, theta, np.zeros(50), _RATE, np.full(50, 0.09), np.array([1.0, 0.1, 0.0]),
-                                         np.full(3, 0.01), np.array([0.1, 0.0, 0.5]), np.full(3, 0.01), points)
+    no_theta = state_point_distributions(body, JointGaussians(theta, np.zeros(50), _RATE, np.full(50, 0.09),
+                                                              np.array([1.0, 0.1, 0.0]), np.full(3, 0.01),
+                                                              np.array([0.1, 0.0, 0.5]), np.full(3, 0.01)), points)
     return dist.vel_cov[0] - no_theta.vel_cov[0]
 
 

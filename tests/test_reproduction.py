@@ -8,7 +8,8 @@ import pytest
 from harness import geometry
 from harness.body import geom_z_range
 from harness.body.grounding import foot_geoms
-from harness.engine.database import CYCLIC_PRIMITIVES, MotionDatabase
+from harness.engine.database import MotionDatabase
+from harness.motion.performer import CYCLIC
 from harness.engine.features import motion_features
 from harness.engine.reproduction import (class_mean, expected_path, generate_angles, mirror_angles, recovered_world,
                                          reproduce, smooth_states, state_path)
@@ -19,7 +20,7 @@ from harness.motion.performer import demonstrations, training_set
 
 @pytest.fixture(scope="module")
 def db(body):
-    return MotionDatabase(n_states=10, cyclic=CYCLIC_PRIMITIVES).fit(
+    return MotionDatabase(n_states=10, cyclic=CYCLIC).fit(
         training_set(("walk", "squat", "kick"), 4, seed=0, body=body))
 
 

@@ -22,6 +22,7 @@ def two_primitives(K: int = 3, seed: int = 0) -> MotionDatabase:
     rng = np.random.default_rng(seed)
     db = MotionDatabase(n_states=K, cyclic=("walk",))
     db.classes_ = np.array(["squat", "walk"])
+    db.cyclic_ = np.array([False, True])
     trans = np.zeros((2, K, K))
     for c in range(2):
         stay = rng.uniform(0.3, 0.9, K)
@@ -139,17 +140,13 @@ def test_settings_are_checked():
         SwitchingRecognizer(two_primitives(), 1.0)
 
 
-def test_the_tracker_builds_a_switching_recognizer_when_asked(monkeypatch):
+def test_a_track_gets_a_switching_recognizer_when_asked():
     from harness.engine.config import TrackerConfig
-    from harness.engine.tracker import Tracker
+    from harness.engine.track import new_recognizer
 
     db = two_primitives()
-    tracker = object.__new__(Tracker)                 # only _new_recognizer is exercised: no body model needed
-    tracker.model = type("M", (), {"db": db})()
-    tracker.config = TrackerConfig(primitive_switch=0.01)
-    assert isinstance(tracker._new_recognizer(), SwitchingRecognizer)
-    tracker.config = TrackerConfig()
-    assert type(tracker._new_recognizer()) is Recognizer
+    assert isinstance(new_recognizer(db, TrackerConfig(primitive_switch=0.01)), SwitchingRecognizer)
+    assert type(new_recognizer(db, TrackerConfig())) is Recognizer
     with pytest.raises(EngineError, match="primitive_switch"):
         TrackerConfig(primitive_switch=1.5)
 

@@ -11,10 +11,11 @@ from harness.body.model import DEFAULT_MODEL_PATH
 from harness.body.model import N_ANGLES
 from harness.body.model import BodyModel
 from harness.body.model import load_mjmodel
+from harness.body.model import nominal_body
 from harness.body.surface import SurfacePoints
 from harness.body.surface import sample_surface
 
 __all__ = [
     "BodyModel", "DEFAULT_MODEL_PATH", "N_ANGLES", "SurfacePoints", "body_frames", "body_origins", "forward_points",
-    "forward_points_and_jacobians", "geom_z_range", "load_mjmodel", "point_jacobians", "point_velocities", "sample_surface",
+    "forward_points_and_jacobians", "geom_z_range", "load_mjmodel", "nominal_body", "point_jacobians", "point_velocities", "sample_surface",
 ]

@@ -8,6 +8,7 @@ frame, MuJoCo's convention for free joints), then the 50 angle rates.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from pathlib import Path
 
 import mujoco
@@ -168,3 +169,10 @@ class BodyModel:
         shape = (N_ANGLES,) if n is None else (n, N_ANGLES)
         mid, half = 0.5 * (self.lower + self.upper), 0.5 * (self.upper - self.lower)
         return mid + scale * half * rng.uniform(-1.0, 1.0, size=shape)
+
+
+@lru_cache(maxsize=1)
+def nominal_body() -> BodyModel:
+    """The model file's body, loaded once per process and shared (its scratch ``MjData`` makes it unsafe to
+    share between threads, not between callers of one thread)."""
+    return BodyModel.load()

@@ -6,7 +6,7 @@ from harness.engine.database import MotionDatabase
 from harness.engine.features import motion_features
 from harness.engine.recognition import Recognizer
 from harness.engine.recognition import recognize_features
-from harness.engine.tracker import Estimate
+from harness.engine.estimate import Estimate
 from harness.engine.tracker import Tracker
 from harness.engine.tracker import TrackerConfig
 

@@ -29,7 +29,8 @@ def _train_args(p: argparse.ArgumentParser) -> None:
 @command("train-database", _train_args)
 def train_database(args: argparse.Namespace) -> int:
     """Learn the motion database (one HMM per primitive) and write it as .npz."""
-    from harness.engine.database import CYCLIC_PRIMITIVES, MotionDatabase
+    from harness.engine.database import MotionDatabase
+    from harness.motion.performer import CYCLIC
 
     if args.capture_dir:
         from harness.motion.captures import load_capture_set
@@ -39,7 +40,7 @@ def train_database(args: argparse.Namespace) -> int:
         from harness.motion.performer import CLASSES, training_set
 
         motions = training_set(args.classes or CLASSES, args.demos, args.seed, args.fps)
-    db = MotionDatabase(n_states=args.states, cyclic=CYCLIC_PRIMITIVES).fit(motions)
+    db = MotionDatabase(n_states=args.states, cyclic=CYCLIC).fit(motions)
     db.save(args.out)
     print(f"{args.out}: {len(db.classes_)} primitives x {args.states} states from {len(motions)} demonstrations")
     return 0

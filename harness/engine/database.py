@@ -24,9 +24,6 @@ from harness.io import save_npz_atomic
 from harness.motion.motion import Motion
 
 DEFAULT_STATES = 20
-# Primitives whose HMM wraps from its last state to its first (the periodic ones of the procedural performer
-# and of the capture sets); every tool that learns a database passes this unless told otherwise.
-CYCLIC_PRIMITIVES = ("walk", "run", "jumping_jack", "wave")
 # Variance floor per feature group, as standard deviations: (2 deg)^2 for angles, (0.3 rad/s)^2 for their
 # rates, (0.05 m/s)^2 and (0.1 rad/s)^2 for the base. Below these the Gaussians claim a repeatability that
 # a human demonstrator does not have, and held-out demonstrations fall outside them.
@@ -59,9 +56,11 @@ def left_to_right(n_states: int, mean_dwell: float, cyclic: bool) -> np.ndarray:
 class MotionDatabase:
     """One HMM per primitive over joint-space features.
 
-    Hyperparameters: ``n_states`` (K), ``cyclic`` (names of primitives whose last state wraps to the first),
-    ``n_iter`` (Baum-Welch iterations). Learned (after ``fit``): ``classes_`` (C,), ``means_`` (C, K, 106),
-    ``covars_`` (C, K, 106) diagonal variances, ``transmat_`` (C, K, K), ``startprob_`` (C, K), ``fps_``.
+    Hyperparameters: ``n_states`` (K), ``cyclic`` (names of primitives whose last state wraps to the first;
+    the data source knows them, e.g. ``harness.motion.performer.CYCLIC``), ``n_iter`` (Baum-Welch iterations).
+    Learned (after ``fit``): ``classes_`` (C,), ``cyclic_`` (C,) bool (whether each primitive's HMM wraps),
+    ``means_`` (C, K, 106), ``covars_`` (C, K, 106) diagonal variances, ``transmat_`` (C, K, K),
+    ``startprob_`` (C, K), ``fps_``.
     """
 
     def __init__(self, n_states: int = DEFAULT_STATES, cyclic: Iterable[str] = (), n_iter: int = 15):
@@ -99,6 +98,7 @@ class MotionDatabase:
             means[c], trans[c], start[c] = hmm.means_, hmm.transmat_, hmm.startprob_
             covars[c] = np.maximum(np.diagonal(hmm.covars_, axis1=1, axis2=2), floor)
         self.classes_ = np.array(classes)
+        self.cyclic_ = np.isin(self.classes_, list(self.cyclic))
         self.means_, self.covars_, self.transmat_, self.startprob_ = means, covars, trans, start
         self.fps_ = float(fps.pop())
         return self
@@ -171,6 +171,7 @@ class MotionDatabase:
                 db = cls(n_states=z["means"].shape[1], cyclic=[str(c) for c in z["cyclic"]],
                          n_iter=int(z["n_iter"]))
                 db.classes_ = z["classes"].astype(str)
+                db.cyclic_ = np.isin(db.classes_, list(db.cyclic))
                 db.means_, db.covars_ = z["means"].astype(float), z["covars"].astype(float)
                 db.transmat_, db.startprob_ = z["transmat"].astype(float), z["startprob"].astype(float)
                 db.fps_ = float(z["fps"])

@@ -22,6 +22,8 @@ contributes zero: no evidence, the belief only moves.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba
 import numpy as np
 
@@ -177,37 +179,51 @@ def _responsibilities_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, he
     return resp
 
 
-def _packed(flows: np.ndarray, img: ImageDistributions, noise_px: float, fps: float, width: int, height: int,
-            outlier_prob: float, max_flow: float | None, held: np.ndarray | None) -> tuple:
-    """The kernels' arguments: flows, the projected distributions, which points are held, the observation
-    noise's position and velocity variances, and the log inlier and outlier terms."""
+@dataclass(frozen=True)
+class FlowModel:
+    """The observation model's settings: pixel noise ``noise_px``, frame rate, image size, the outlier
+    probability, the largest image speed of the uniform outlier term (px/s; None: a quarter of the image per
+    frame), and the EM steps and pseudo-flows of the adapted mixture weights."""
+
+    noise_px: float
+    fps: float
+    width: int
+    height: int
+    outlier_prob: float = 0.05
+    max_flow: float | None = None
+    weight_iterations: int = 0
+    smoothing: float = 0.0
+
+
+def _prepared(flows: np.ndarray, img: ImageDistributions, model: FlowModel, held: np.ndarray | None) -> tuple:
+    """The kernels' arguments: the flows sorted by ``u`` and their order, the projected distributions, which
+    points are held, and the scalars (observation noise's position and velocity variances, log inlier and
+    outlier terms, EM steps, pseudo-flows)."""
     flows = np.ascontiguousarray(flows, dtype=float).reshape(-1, 4)
-    if max_flow is None:
-        max_flow = 0.25 * max(width, height) * fps   # a quarter of the image per frame
-    log_out = np.log(outlier_prob) - np.log(width * height) - np.log(np.pi * max_flow**2)
-    log_in = np.log1p(-outlier_prob)
-    return (flows, np.ascontiguousarray(img.pix), np.ascontiguousarray(img.pix_cov), np.ascontiguousarray(img.flow),
-            np.ascontiguousarray(img.flow_cov), np.ascontiguousarray(img.visibility, dtype=float),
-            np.zeros(img.visibility.shape, dtype=np.bool_) if held is None
-            else np.ascontiguousarray(np.broadcast_to(held, img.visibility.shape), dtype=np.bool_),
-            float(noise_px**2), float(2.0 * (noise_px * fps) ** 2), log_in, log_out)
+    order = np.argsort(flows[:, 0], kind="stable")
+    max_flow = 0.25 * max(model.width, model.height) * model.fps if model.max_flow is None else model.max_flow
+    log_out = np.log(model.outlier_prob) - np.log(model.width * model.height) - np.log(np.pi * max_flow**2)
+    log_in = np.log1p(-model.outlier_prob)
+    dists = (np.ascontiguousarray(img.pix), np.ascontiguousarray(img.pix_cov), np.ascontiguousarray(img.flow),
+             np.ascontiguousarray(img.flow_cov), np.ascontiguousarray(img.visibility, dtype=float))
+    held = (np.zeros(img.visibility.shape, dtype=np.bool_) if held is None
+            else np.ascontiguousarray(np.broadcast_to(held, img.visibility.shape), dtype=np.bool_))
+    scalars = (float(model.noise_px**2), float(2.0 * (model.noise_px * model.fps) ** 2), log_in, log_out,
+               int(model.weight_iterations), float(model.smoothing))
+    return np.ascontiguousarray(flows[order]), order, dists, held, scalars
 
 
-def flow_log_likelihoods(flows: np.ndarray, img: ImageDistributions, noise_px: float, fps: float,
-                         width: int, height: int, outlier_prob: float = 0.05, max_flow: float | None = None,
-                         weight_iterations: int = 0, smoothing: float = 0.0, held: np.ndarray | None = None
-                         ) -> np.ndarray:
+def flow_log_likelihoods(flows: np.ndarray, img: ImageDistributions, model: FlowModel,
+                         held: np.ndarray | None = None) -> np.ndarray:
     """``(H, M)`` log-likelihood of each flow ``(M, 4)`` under each hypothesis (see the module docstring).
 
-    Hypotheses with no visible point explain every flow as an outlier. ``weight_iterations`` EM steps adapt
-    the mixture weights of the model points to the flows (``smoothing``: pseudo-flows spread by visibility),
-    except for ``held`` points ``(H, P)`` bool, whose weights keep their prior proportions.
+    Hypotheses with no visible point explain every flow as an outlier. ``model.weight_iterations`` EM steps
+    adapt the mixture weights of the model points to the flows (``model.smoothing``: pseudo-flows spread by
+    visibility), except for ``held`` points ``(H, P)`` bool, whose weights keep their prior proportions.
     """
-    args = _packed(flows, img, noise_px, fps, width, height, outlier_prob, max_flow, held)
-    order = np.argsort(args[0][:, 0], kind="stable")
+    ordered, order, dists, held, scalars = _prepared(flows, img, model, held)
     out = np.empty((img.visibility.shape[0], len(order)))
-    out[:, order] = _flow_loglik_kernel(np.ascontiguousarray(args[0][order]), *args[1:], int(weight_iterations),
-                                        float(smoothing))
+    out[:, order] = _flow_loglik_kernel(ordered, *dists, held, *scalars)
     return out
 
 
@@ -220,16 +236,12 @@ def tempered(per_flow: np.ndarray, n_eff: float) -> np.ndarray:
     return per_flow.sum(axis=1) * (min(M, n_eff) / M)
 
 
-def responsibilities(flows: np.ndarray, img: ImageDistributions, noise_px: float, fps: float, width: int,
-                     height: int, outlier_prob: float = 0.05, max_flow: float | None = None,
-                     weight_iterations: int = 0, smoothing: float = 0.0, held: np.ndarray | None = None
-                     ) -> np.ndarray:
+def responsibilities(flows: np.ndarray, img: ImageDistributions, model: FlowModel,
+                     held: np.ndarray | None = None) -> np.ndarray:
     """For one hypothesis: ``(M, P)`` posterior probability that flow ``m`` comes from model point ``p``
     (rows sum to one minus the flow's outlier probability), under the same gate, visibility and adapted
     weights as ``flow_log_likelihoods`` (the same kernel code)."""
-    args = _packed(flows, img, noise_px, fps, width, height, outlier_prob, max_flow, held)
-    order = np.argsort(args[0][:, 0], kind="stable")
+    ordered, order, dists, held, scalars = _prepared(flows, img, model, held)
     out = np.empty((len(order), img.visibility.shape[1]))
-    out[order] = _responsibilities_kernel(np.ascontiguousarray(args[0][order]), *(a[0] for a in args[1:7]),
-                                          *args[7:], int(weight_iterations), float(smoothing))
+    out[order] = _responsibilities_kernel(ordered, *(a[0] for a in dists), held[0], *scalars)
     return out

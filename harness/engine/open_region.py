@@ -10,8 +10,34 @@ neighbours within the last ``memory`` frames.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.ndimage import maximum_filter
+
+
+def _cells(pix: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """Grid rows and columns of pixels ``(..., 2)`` (NaN and infinities land outside the grid)."""
+    cells = np.floor(np.nan_to_num(np.asarray(pix, dtype=float) / cell, nan=-1.0, posinf=-1.0,
+                                   neginf=-1.0)).astype(int)
+    return cells[..., 1], cells[..., 0]
+
+
+@dataclass(frozen=True)
+class OpenMask:
+    """The open region at one frame: ``open`` ``(rows, cols)`` bool over a grid of ``cell`` pixels."""
+
+    open: np.ndarray
+    cell: float
+
+    def held(self, pix: np.ndarray) -> np.ndarray:
+        """Whether pixels ``(..., 2)`` lie in the open region (outside the image: not)."""
+        rows, cols = _cells(pix, self.cell)
+        shape = self.open.shape
+        inside = (rows >= 0) & (rows < shape[0]) & (cols >= 0) & (cols < shape[1])
+        out = np.zeros(rows.shape, dtype=bool)
+        out[inside] = self.open[rows[inside], cols[inside]]
+        return out
 
 
 class OpenRegion:
@@ -23,26 +49,12 @@ class OpenRegion:
         self.shape = (int(np.ceil(height / cell)), int(np.ceil(width / cell)))
         self._last = np.full(self.shape, -np.inf)
         self._frame = -1
-        self._open = np.zeros(self.shape, dtype=bool)
 
-    def update(self, flows: np.ndarray) -> None:
-        """Add one frame's flows ``(M, >= 2)`` (pixel positions first)."""
+    def update(self, flows: np.ndarray) -> OpenMask:
+        """Add one frame's flows ``(M, >= 2)`` (pixel positions first); returns the open region now."""
         self._frame += 1
         if len(flows):
-            rows, cols = self._cells(np.asarray(flows, dtype=float)[:, :2])
+            rows, cols = _cells(np.asarray(flows, dtype=float)[:, :2], self.cell)
             inside = (rows >= 0) & (rows < self.shape[0]) & (cols >= 0) & (cols < self.shape[1])
             self._last[rows[inside], cols[inside]] = self._frame
-        self._open = maximum_filter(self._last >= self._frame - self.memory, size=3)
-
-    def held(self, pix: np.ndarray) -> np.ndarray:
-        """Whether pixels ``(..., 2)`` lie in the open region (outside the image: not)."""
-        rows, cols = self._cells(pix)
-        inside = (rows >= 0) & (rows < self.shape[0]) & (cols >= 0) & (cols < self.shape[1])
-        out = np.zeros(rows.shape, dtype=bool)
-        out[inside] = self._open[rows[inside], cols[inside]]
-        return out
-
-    def _cells(self, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        cells = np.floor(np.nan_to_num(np.asarray(pix, dtype=float) / self.cell, nan=-1.0, posinf=-1.0,
-                                       neginf=-1.0)).astype(int)
-        return cells[..., 1], cells[..., 0]
+        return OpenMask(maximum_filter(self._last >= self._frame - self.memory, size=3), self.cell)

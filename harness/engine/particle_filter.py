@@ -134,8 +134,9 @@ class ParticleCloud:
         return w @ self.positions, geometry.weighted_mean(self.quats, w)
 
 
-def initial_cloud(intr: Intrinsics, flows: np.ndarray, n: int, depth_range: tuple[float, float],
-                  world_from_camera: np.ndarray, body_height: float, rng: np.random.Generator) -> ParticleCloud:
+def initial_cloud(intr: Intrinsics, flows: np.ndarray, n: int, rng: np.random.Generator, *,
+                  depth_range: tuple[float, float], world_from_camera: np.ndarray, body_height: float
+                  ) -> ParticleCloud:
     """A coarse prior: the subject where the flows are, at a depth within ``depth_range`` and a band around
     what the flows' vertical extent suggests, any heading, upright under the cameras ``world_from_camera``
     (``(n, 3, 3)`` drawn by the caller from its elevation prior, or the known tilt)."""
@@ -211,7 +212,7 @@ def motion_mean(positions: np.ndarray, quats: np.ndarray, base_linear: np.ndarra
 
 
 def _gaussian_pose_log_density(pos: np.ndarray, quat: np.ndarray, mean_pos: np.ndarray, mean_quat: np.ndarray,
-                               pos_std: np.ndarray, rot_std: np.ndarray, frame: np.ndarray) -> np.ndarray:
+                               pos_std: np.ndarray, rot_std: np.ndarray, *, frame: np.ndarray) -> np.ndarray:
     """``(N, K)``: log density of poses ``(N,)`` under Gaussians centred on ``(K,)`` poses, independent in
     position (per-axis ``pos_std``, camera axes) and in the rotation vector ``log(R_mean^T R)`` expressed in
     ``frame`` (per-axis ``rot_std``)."""
@@ -223,15 +224,16 @@ def _gaussian_pose_log_density(pos: np.ndarray, quat: np.ndarray, mean_pos: np.n
             - np.sum(np.log(pos_std)) - np.sum(np.log(rot_std)) - 3.0 * np.log(2.0 * np.pi))
 
 
-def propose(cloud: ParticleCloud, n: int, base_linear: np.ndarray, base_angular: np.ndarray, dt: float,
-            noise: ProcessNoise, rng: np.random.Generator, camera_motion: np.ndarray | None = None,
+def propose(cloud: ParticleCloud, n: int, noise: ProcessNoise, rng: np.random.Generator, *,
+            base_linear: np.ndarray, base_angular: np.ndarray, dt: float, camera_motion: np.ndarray | None = None,
             guide: tuple[np.ndarray, np.ndarray] | None = None, guide_fraction: float = 0.0,
             guide_std: tuple[np.ndarray, np.ndarray] | None = None) -> ParticleCloud:
     """``n`` new particles from the mixture proposal (module docstring), with log-weights ``log π(x)/q(x)``
     normalised: multiply in the likelihood with ``ParticleCloud.reweight``.
 
-    guide: a pose ``(position (3,), quaternion (4,))`` at the *new* frame; guide_std: its per-axis position
-    (m) and rotation (rad, camera axes) standard deviations.
+    base_linear, base_angular: the base velocity (base frame, ``(3,)`` or ``(N, 3)``) over ``dt`` s; guide: a
+    pose ``(position (3,), quaternion (4,))`` at the *new* frame; guide_std: its per-axis position (m) and
+    rotation (rad, camera axes) standard deviations.
     """
     mean_pos, mean_quat = motion_mean(cloud.positions, cloud.quats, base_linear, base_angular, dt, camera_motion)
     pos_std = np.full(3, noise.position * np.sqrt(dt))
@@ -251,10 +253,10 @@ def propose(cloud: ParticleCloud, n: int, base_linear: np.ndarray, base_angular:
     quat = geometry.normalize(quat)
     log_w = np.full(n, -np.log(n))
     if n_guide:
-        prior = logsumexp(_gaussian_pose_log_density(pos, quat, mean_pos, mean_quat, pos_std, rot_std, frame)
+        prior = logsumexp(_gaussian_pose_log_density(pos, quat, mean_pos, mean_quat, pos_std, rot_std, frame=frame)
                           + cloud.log_weights[None, :], axis=1)
         g = _gaussian_pose_log_density(pos, quat, np.asarray(guide[0])[None], np.asarray(guide[1])[None],
-                                       g_pos_std, g_rot_std, np.eye(3))[:, 0]
+                                       g_pos_std, g_rot_std, frame=np.eye(3))[:, 0]
         a = n_guide / n
         q = np.logaddexp(np.log1p(-a) + prior, np.log(a) + g) if a < 1 else g
         log_w = prior - q

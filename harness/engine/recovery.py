@@ -14,6 +14,7 @@ Jacobian evaluation of the model points, whatever the number of flows.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -23,43 +24,71 @@ from harness.body.kinematics import forward_points_and_jacobians
 from harness.body.model import BodyModel
 from harness.body.surface import SurfacePoints
 from harness.engine.features import ANGLE_RATES, ANGLES
-from harness.engine.likelihood import responsibilities
-from harness.engine.transform import MIN_DEPTH, _skew, state_point_distributions, to_image
+from harness.engine.likelihood import FlowModel, responsibilities
+from harness.engine.transform import MIN_DEPTH, JointGaussians, _skew, state_point_distributions, to_image
 from harness.pinhole import Intrinsics, project, projection_jacobian
 
 if TYPE_CHECKING:
-    from harness.engine.model import EngineModel
-    from harness.engine.config import TrackerConfig
-    from harness.engine.open_region import OpenRegion
+    from harness.engine.frame import Frame
+    from harness.engine.scoring import Scorer
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """A configuration recovery produced: angles ``(50,)``, base position ``(3,)`` and rotation ``(3, 3)`` in
+    the camera frame. refined: whether recovery worked on it this frame (the track was among the
+    ``recover_tracks`` with the most evidence), so that its next proposal may be guided by it; else it is the
+    belief's mean angles at the filter's estimate."""
+
+    angles: np.ndarray
+    position: np.ndarray
+    rotation: np.ndarray
+    refined: bool = True
+
+    @property
+    def qpos(self) -> np.ndarray:
+        """``(57,)``: base position, base quaternion (camera from base), angles."""
+        return np.concatenate([self.position, geometry.from_matrix(self.rotation), self.angles])
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Recovery's Gaussian prior: angles ``(50,)`` with std ``(50,)`` (rad), the base position ``(3,)`` with
+    std ``(3,)`` (m) and the base rotation ``(3, 3)`` with an isotropic std (rad), camera frame."""
+
+    angles: np.ndarray
+    angle_std: np.ndarray
+    position: np.ndarray
+    position_std: np.ndarray
+    rotation: np.ndarray
+    rotation_std: float
 
 
 def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows: np.ndarray, resp: np.ndarray,
-                angles0: np.ndarray, angle_std: np.ndarray, position0: np.ndarray, rot0: np.ndarray,
-                position_std: np.ndarray, rotation_std: float, noise_px: float, spread: float,
-                iterations: int = 3, damping: float = 1e-3, start: tuple | None = None, fix_pose: bool = False
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                prior: Prior, *, noise_px: float, spread: float, iterations: int = 3, damping: float = 1e-3,
+                start: Recovery | None = None, fix_pose: bool = False) -> Recovery:
     """Refine angles ``(50,)`` and the base pose (camera frame) to the observed flow positions.
 
     ``fix_pose``: the base pose is given (the ground-truth-pose baseline) and only the angles move.
 
-    ``resp`` ``(M, P)``: soft assignment of the ``M`` flows to the ``P`` model points. The prior is centred
-    on ``angles0``, ``position0``, ``rot0``; the steps start from ``start`` (angles, position, rotation) when
-    given, else from the prior. Returns ``(angles, position (3,), rotation (3, 3))``; with no flows, the start.
+    ``resp`` ``(M, P)``: soft assignment of the ``M`` flows to the ``P`` model points. The steps start from
+    ``start`` when given, else from the prior's means. Returns the refined configuration; with no flows, the
+    start.
     """
     if start is None:
-        start = (angles0, position0, rot0)
-    angles = np.clip(np.asarray(start[0], dtype=float), body.lower, body.upper)
-    pos = np.asarray(start[1], dtype=float).copy()
-    rot = np.asarray(start[2], dtype=float).copy()
+        start = Recovery(prior.angles, prior.position, prior.rotation)
+    angles = np.clip(np.asarray(start.angles, dtype=float), body.lower, body.upper)
+    pos = np.asarray(start.position, dtype=float).copy()
+    rot = np.asarray(start.rotation, dtype=float).copy()
     flows = np.asarray(flows, dtype=float).reshape(-1, 4)
     mass = resp.sum(axis=0)                                          # (P,)
     used = mass > 1e-3
     if len(flows) == 0 or not used.any() or iterations <= 0:
-        return angles, pos, rot
+        return Recovery(angles, pos, rot)
     target = (resp[:, used].T @ flows[:, :2]) / mass[used, None]      # (P_used, 2)
     sub = points.subset(np.flatnonzero(used))
-    prior_prec = np.concatenate([1.0 / np.asarray(angle_std) ** 2, 1.0 / np.asarray(position_std) ** 2,
-                                 np.full(3, 1.0 / rotation_std**2)])
+    prior_prec = np.concatenate([1.0 / np.asarray(prior.angle_std) ** 2, 1.0 / np.asarray(prior.position_std) ** 2,
+                                 np.full(3, 1.0 / prior.rotation_std**2)])
     qpos = np.zeros(57)
     qpos[3] = 1.0
     for _ in range(iterations):
@@ -77,7 +106,8 @@ def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows:
         Gw = (G * np.sqrt(w)[:, None, None]).reshape(-1, G.shape[-1])     # rows of sqrt(W_p) G_p
         A = Gw.T @ Gw                                                    # sum_p W_p G_p^T G_p
         b = Gw.T @ ((target - u) * np.sqrt(w)[:, None]).ravel()          # sum_p W_p G_p^T r_p
-        offset = np.concatenate([angles - angles0, pos - position0, geometry.log(geometry.from_matrix(rot0.T @ rot))])
+        offset = np.concatenate([angles - prior.angles, pos - prior.position,
+                                 geometry.log(geometry.from_matrix(prior.rotation.T @ rot))])
         A[np.diag_indices_from(A)] += prior_prec
         b -= prior_prec * offset
         A[np.diag_indices_from(A)] *= 1.0 + damping
@@ -87,24 +117,21 @@ def refine_pose(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows:
         angles = np.clip(angles + step[:50], body.lower, body.upper)
         pos = pos + step[50:53]
         rot = rot @ geometry.to_matrix(geometry.exp(step[53:]))
-    return angles, pos, rot
+    return Recovery(angles, pos, rot)
 
 
-def recover(model: "EngineModel", flows: np.ndarray, intr: Intrinsics, fps: float, state_belief: np.ndarray,
-            position: np.ndarray, rot: np.ndarray, position_std: np.ndarray, config: "TrackerConfig",
-            camera_motion: np.ndarray | None = None, fix_pose: bool = False,
-            occlusion: tuple[float, float] | None = None, open_region: "OpenRegion | None" = None
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Angles of a recognised primitive and a refined pose, by EM against the flows (``occlusion``: as for
-    ``to_image``; ``open_region``: as for the likelihood).
+def recover(scorer: "Scorer", frame: "Frame", state_belief: np.ndarray, position: np.ndarray, rot: np.ndarray,
+            position_std: np.ndarray, *, refine: bool = True, fix_pose: bool = False) -> Recovery:
+    """Angles of a recognised primitive and a refined pose, by EM against the frame's flows.
 
     ``state_belief`` ``(S,)`` over all database states (zero outside the recognised primitive). The prior is
     the belief's moment-matched Gaussian over the angles; the pose prior is ``position`` ``(3,)``,
-    ``rot`` ``(3, 3)`` with ``position_std`` ``(3,)`` and ``config.refine_rotation_std``. The E-step assigns
-    flows to model points softly, first under the state belief, then at the current estimate (whose points
-    only spread over their surface patch); the M-step is ``refine_pose``. Returns ``(angles (50,), position
-    (3,), rotation (3, 3))``; without flows, the prior mean and the given pose.
+    ``rot`` ``(3, 3)`` with ``position_std`` ``(3,)`` and the setting ``refine_rotation_std``. The E-step
+    assigns flows to model points softly, first under the state belief, then at the current estimate (whose
+    points only spread over their surface patch), with the likelihood's visibility and weights; the M-step is
+    ``refine_pose``. Without flows, or with ``refine`` false, the prior mean at the given pose.
     """
+    model, config = scorer.model, scorer.config
     idx = np.flatnonzero(state_belief > 0)
     gamma = state_belief[idx] / state_belief[idx].sum()
     means, covars = model.db_means[idx], model.db_covars[idx]
@@ -112,29 +139,26 @@ def recover(model: "EngineModel", flows: np.ndarray, intr: Intrinsics, fps: floa
     var = gamma @ (covars[:, ANGLES] + (means[:, ANGLES] - theta0) ** 2)
     rates = gamma @ means[:, ANGLE_RATES]
     rate_var = gamma @ (covars[:, ANGLE_RATES] + (means[:, ANGLE_RATES] - rates) ** 2)
-    angles, pos_r, rot_r = theta0, position, rot
-    if len(flows) == 0:
-        return angles, pos_r, rot_r
+    current = Recovery(theta0, position, rot, refined=refine)
+    if not refine or not frame.has_flows:
+        return current
+    prior = Prior(theta0, np.sqrt(var), position, position_std, rot, config.refine_rotation_std)
     mix = model.dists.take(idx).mixture(gamma)
-    kw = dict(weight_iterations=config.weight_iterations, smoothing=config.weight_smoothing)
     for it in range(config.em_iterations):
         if it:
-            mix = state_point_distributions(model.body, angles, np.zeros(len(angles)), rates, rate_var,
-                                            mix.base_linear[0], np.zeros(3), mix.base_angular[0], np.zeros(3),
+            mix = state_point_distributions(model.body, JointGaussians.at(current.angles, rates, rate_var,
+                                                                          mix.base_linear[0], mix.base_angular[0]),
                                             model.points, model.spread)
-        img = to_image(intr, rot_r[None], pos_r[None], mix, camera_motion, occlusion=occlusion)
-        held = None if open_region is None else open_region.held(img.pix)
-        resp = responsibilities(flows, img, config.noise_px, fps, intr.width, intr.height, config.outlier_prob,
-                                held=held, **kw)
-        angles, pos_r, rot_r = refine_pose(model.body, model.points, intr, flows, resp, theta0, np.sqrt(var),
-                                           position, rot, position_std, config.refine_rotation_std,
-                                           config.noise_px, model.spread, config.refine_iterations,
-                                           start=(angles, pos_r, rot_r), fix_pose=fix_pose)
-    return angles, pos_r, rot_r
+        img = scorer.image(frame, current.rotation[None], current.position[None], mix)
+        resp = scorer.responsibilities(frame, img)
+        current = refine_pose(model.body, model.points, frame.intr, frame.flows, resp, prior,
+                              noise_px=config.noise_px, spread=model.spread, iterations=config.refine_iterations,
+                              start=current, fix_pose=fix_pose)
+    return current
 
 
 def fit_without_database(body: BodyModel, points: SurfacePoints, intr: Intrinsics, flows: list[np.ndarray],
-                         base_pos: np.ndarray, base_quat: np.ndarray, noise_px: float, spread: float,
+                         base_pos: np.ndarray, base_quat: np.ndarray, *, noise_px: float, spread: float,
                          angle_step_std: float = 0.3, iterations: int = 2) -> np.ndarray:
     """The no-database ablation: per frame, fit the 50 angles to the flow positions alone (soft assignment to
     the model points at the current angles, Gauss-Newton), from the previous frame's angles with a weak
@@ -142,18 +166,18 @@ def fit_without_database(body: BodyModel, points: SurfacePoints, intr: Intrinsic
     ``(T, 50)`` angles. No HMM, no recognition: what the database's prior adds is the difference."""
     angles = np.zeros(50)
     out = np.empty((len(flows), 50))
-    zeros50, zeros3 = np.zeros(50), np.zeros(3)
+    flow_model = FlowModel(noise_px, 1.0, intr.width, intr.height)
     for t, f in enumerate(flows):
         rot = geometry.to_matrix(base_quat[t])
         for _ in range(iterations if len(f) else 0):
-            dist = state_point_distributions(body, angles, zeros50, zeros50, zeros50, zeros3, zeros3, zeros3,
-                                             zeros3, points, spread)
+            dist = state_point_distributions(body, JointGaussians.at(angles), points, spread)
             img = to_image(intr, rot[None], base_pos[t][None], dist)
             # Positions only: a velocity covariance this wide makes the velocity factor constant.
             img = type(img)(img.pix, img.pix_cov, img.flow, np.broadcast_to(1e12 * np.eye(2), img.flow_cov.shape),
                             img.visibility)
-            resp = responsibilities(f, img, noise_px, 1.0, intr.width, intr.height)
-            angles, _, _ = refine_pose(body, points, intr, f, resp, angles, np.full(50, angle_step_std),
-                                       base_pos[t], rot, np.full(3, 1e-4), 1e-4, noise_px, spread, iterations=1)
+            resp = responsibilities(f, img, flow_model)
+            prior = Prior(angles, np.full(50, angle_step_std), base_pos[t], np.full(3, 1e-4), rot, 1e-4)
+            angles = refine_pose(body, points, intr, f, resp, prior, noise_px=noise_px, spread=spread,
+                                 iterations=1).angles
         out[t] = angles
     return out

@@ -146,7 +146,7 @@ def mirror_angles(body: BodyModel, angles: np.ndarray) -> np.ndarray:
     return np.asarray(angles)[..., other] * sign
 
 
-def reproduce(db: MotionDatabase, body: BodyModel, label: str, path: np.ndarray, fps: float,
+def reproduce(db: MotionDatabase, body: BodyModel, label: str, path: np.ndarray, fps: float, *,
               start_xy: np.ndarray | None = None, start_heading: float = 0.0, mirror: bool = False,
               angles: np.ndarray | None = None) -> Motion:
     """Reproduce primitive ``label`` along state path ``path`` ``(T, K)`` on ``body`` in a world frame (z up,

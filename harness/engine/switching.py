@@ -13,7 +13,7 @@ Every row sums to one, so the forward recursion ``alpha_t ∝ b_t * (alpha_{t-1}
 only the prediction differs). The choices, with ``s`` the engine setting ``primitive_switch``:
 
 - **exit states**: a non-cyclic primitive is left from its last state (its end rest; the left-to-right HMM of
-  ``MotionDatabase`` makes that state absorbing), ``e_c(K-1) = s``; a cyclic one (``db.cyclic``: walk, run,
+  ``MotionDatabase`` makes that state absorbing), ``e_c(K-1) = s``; a cyclic one (``db.cyclic_``: walk, run,
   ...) from any state, ``e_c(j) = s``, since a performer stops a gait anywhere in its cycle (leaving after a
   full cycle, from the last state, is one of these). ``s`` is the per-frame probability of a primitive change
   from an exit state; for procedural streams it is one over their mean primitive duration in frames
@@ -48,7 +48,7 @@ def exit_states(db: MotionDatabase) -> np.ndarray:
     C, K = db.startprob_.shape
     out = np.zeros((C, K), dtype=bool)
     out[:, -1] = True
-    out[np.isin(db.classes_, list(db.cyclic))] = True
+    out[db.cyclic_] = True
     return out
 
 

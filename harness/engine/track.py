@@ -14,14 +14,23 @@ pruning). Tracks are compared by evidence; the decision between them is made as 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from harness import geometry
-from harness.engine.particle_filter import ParticleCloud, level_world
+from harness.engine.config import TrackerConfig
+from harness.engine.database import MotionDatabase
+from harness.engine.frame import Frame
+from harness.engine.particle_filter import ParticleCloud, ProcessNoise, level_world, motion_mean, propose
 from harness.engine.recognition import Recognizer
+from harness.engine.records import TrackRecord
+from harness.engine.recovery import Recovery
+from harness.engine.switching import SwitchingRecognizer
 from harness.engine.transform import PointDistributions
+
+if TYPE_CHECKING:
+    from harness.engine.scoring import Scorer
 
 # Depth reflection in the camera frame (through the plane z = const) and the body's left/right mirror in the
 # base frame (y -> -y). Their composition maps a pose to its twin: X = R x + t and S (X - t) + t = (S R S_b)
@@ -51,39 +60,46 @@ def twin(quats: np.ndarray, gravity: np.ndarray | None = None) -> np.ndarray:
     return geometry.from_matrix(world.T @ np.diag([-1.0, 1.0, 1.0]) @ world @ rot @ _BODY_MIRROR)
 
 
-@dataclass
-class Recovered:
-    """What recovery found for a track in the current frame: angles ``(50,)``, base position ``(3,)`` and
-    rotation ``(3, 3)`` in the camera frame; refined: whether the flows refined them (else the belief's mean
-    angles at the filter's estimate)."""
-
-    angles: np.ndarray
-    position: np.ndarray
-    rotation: np.ndarray
-    refined: bool = True
+def new_recognizer(db: MotionDatabase, config: TrackerConfig) -> Recognizer:
+    """A track's belief over (primitive, state): the isolated recursion, or the switching one for streams."""
+    if config.primitive_switch > 0:
+        return SwitchingRecognizer(db, config.primitive_switch, config.start_spread, config.prune)
+    return Recognizer(db, config.start_spread, config.prune)
 
 
 class Track:
     """One global-pose hypothesis (see the module docstring).
 
-    cloud: its particles (None when the pose is given); recognizer: its belief; origin: how it was spawned
-    (``lead``, ``turn+90``, ``turn180``, ``turn-90``, ``twin``, ``given``); log_evidence: tempered nats since
-    the first frame with flows; estimate: this frame's filter estimate ``(position, quaternion)``;
-    recovered: this frame's recovery; history: its configurations so far (for the offline estimate).
+    id: unique within a sequence; origin: how it was spawned (``lead``, ``turn+90``, ``turn180``, ``turn-90``,
+    ``twin``, ``given``); recognizer: its belief; cloud: its particles (None when the pose is given);
+    log_evidence: tempered nats since the first frame with flows; pose: this frame's filter estimate
+    ``(position (3,), quaternion (4,))`` and pose_std ``(3,)`` the position std recovery may use around it;
+    recovery: what recovery found this frame (the next proposal is guided by it when it was refined).
     """
 
-    def __init__(self, cloud: ParticleCloud | None, recognizer: Recognizer, origin: str, log_evidence: float = 0.0):
-        self.cloud = cloud
-        self.recognizer = recognizer
+    def __init__(self, track_id: int, origin: str, recognizer: Recognizer, cloud: ParticleCloud | None = None):
+        self.id = int(track_id)
         self.origin = origin
-        self.log_evidence = float(log_evidence)
-        self.estimate: tuple[np.ndarray, np.ndarray] | None = None
-        self.recovered: Recovered | None = None
-        self.spread = np.zeros(3)
-        self.history: list[np.ndarray] = []     # its recovered configuration (57,) at every frame since it started
+        self.recognizer = recognizer
+        self.cloud = cloud
+        self.log_evidence = 0.0
+        self.pose: tuple[np.ndarray, np.ndarray] | None = None
+        self.pose_std = np.zeros(3)
+        self.recovery: Recovery | None = None
 
     def __repr__(self) -> str:
-        return f"Track({self.origin}, evidence {self.log_evidence:.1f})"
+        return f"Track({self.id}, {self.origin}, evidence {self.log_evidence:.1f})"
+
+    # --- the belief -----------------------------------------------------------------------------
+
+    def predict_belief(self) -> None:
+        """Move the belief through the HMM transitions. A state's base velocity is over the interval ending at
+        its own frame (``features.VELOCITY_SCHEME``), so the belief moves before it predicts the base."""
+        self.recognizer.predict()
+
+    def recognise(self, scorer: "Scorer", frame: Frame) -> None:
+        """Fold the frame into the belief at this frame's pose; the recursion's normaliser is new evidence."""
+        self.log_evidence += scorer.recognise(frame, self.recognizer, *self.pose)
 
     def class_mixtures(self, dists: PointDistributions, max_classes: int, mass: float
                        ) -> tuple[np.ndarray, PointDistributions]:
@@ -116,3 +132,57 @@ class Track:
         out = np.zeros(C * K)
         out[best * K:(best + 1) * K] = self.recognizer.state_posterior[best]
         return out
+
+    # --- the pose -------------------------------------------------------------------------------
+
+    def move(self, frame: Frame, dists: PointDistributions, n: int, noise: ProcessNoise,
+             rng: np.random.Generator, config: TrackerConfig) -> None:
+        """Propose ``n`` particles for this frame: the motion model at the belief's base velocity, mixed with
+        proposals around last frame's recovered pose when recovery refined it (``particle_filter.propose``)."""
+        v, w = self.base_velocity(dists)
+        guide = guide_std = None
+        rec = self.recovery
+        if rec is not None and rec.refined and config.guide_fraction > 0:
+            g_pos, g_quat = motion_mean(rec.position[None], geometry.from_matrix(rec.rotation)[None], v, w, frame.dt,
+                                        frame.camera_motion)
+            guide = (g_pos[0], g_quat[0])
+            guide_std = (0.5 * self.pose_std, config.guide_rotation_std)
+        self.cloud = propose(self.cloud, n, noise, rng, base_linear=v, base_angular=w, dt=frame.dt,
+                             camera_motion=frame.camera_motion, guide=guide, guide_fraction=config.guide_fraction,
+                             guide_std=guide_std)
+
+    def reweight(self, log_likelihood: np.ndarray) -> None:
+        """Multiply the particles' weights by likelihoods ``(N,)`` (log)."""
+        self.cloud.reweight(log_likelihood)
+
+    def settle(self, min_std: float) -> None:
+        """This frame's pose: the cloud's estimate, with its spread (at least ``min_std``) as recovery's room."""
+        self.pose = self.cloud.estimate()
+        self.pose_std = np.maximum(self.cloud.spread(), min_std)
+
+    def place(self, position: np.ndarray, quat: np.ndarray) -> None:
+        """This frame's pose, given (no room for recovery to move it)."""
+        self.pose = (np.asarray(position, dtype=float), np.asarray(quat, dtype=float))
+        self.pose_std = np.zeros(3)
+
+    def recovered(self, recovery: Recovery) -> None:
+        self.recovery = recovery
+
+    def record(self) -> TrackRecord:
+        """What the track is at the end of this frame."""
+        return TrackRecord(self.id, self.origin, self.log_evidence, self.pose[0], self.pose[1], self.recovery.qpos,
+                           self.recognizer.posterior)
+
+
+def prune_and_merge(tracks: list[Track], prune_nats: float, merge_m: float, merge_deg: float) -> list[Track]:
+    """The tracks worth keeping, most evidence first: those within ``prune_nats`` of the best, and of two that
+    met (positions within ``merge_m``, orientations within ``merge_deg``) only the one with more evidence."""
+    best = max(t.log_evidence for t in tracks)
+    kept = sorted((t for t in tracks if t.log_evidence >= best - prune_nats), key=lambda t: -t.log_evidence)
+    merged: list[Track] = []
+    for track in kept:
+        pos, quat = track.pose
+        if not any(np.linalg.norm(pos - m.pose[0]) < merge_m
+                   and geometry.angle_between(quat, m.pose[1]) < np.deg2rad(merge_deg) for m in merged):
+            merged.append(track)
+    return merged

@@ -92,12 +92,46 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
 
 
-def state_point_distributions(body: BodyModel, angles: np.ndarray, angle_var: np.ndarray, rates: np.ndarray,
-                              rate_var: np.ndarray, base_linear: np.ndarray, base_linear_var: np.ndarray,
-                              base_angular: np.ndarray, base_angular_var: np.ndarray, points: SurfacePoints,
+@dataclass(frozen=True)
+class JointGaussians:
+    """``S`` joint-space Gaussians with diagonal covariances: means and variances of the angles ``(S, 50)``
+    (rad), their rates ``(S, 50)`` (rad/s), and the base's linear ``(S, 3)`` (m/s) and angular ``(S, 3)``
+    (rad/s) velocity in the base frame."""
+
+    angles: np.ndarray
+    angle_var: np.ndarray
+    rates: np.ndarray
+    rate_var: np.ndarray
+    base_linear: np.ndarray
+    base_linear_var: np.ndarray
+    base_angular: np.ndarray
+    base_angular_var: np.ndarray
+
+    @classmethod
+    def from_features(cls, mean: np.ndarray, var: np.ndarray) -> "JointGaussians":
+        """From feature means and variances ``(S, 106)`` (``features``)."""
+        return cls(mean[:, ANGLES], var[:, ANGLES], mean[:, ANGLE_RATES], var[:, ANGLE_RATES],
+                   mean[:, BASE_LINEAR], var[:, BASE_LINEAR], mean[:, BASE_ANGULAR], var[:, BASE_ANGULAR])
+
+    @classmethod
+    def at(cls, angles: np.ndarray, rates: np.ndarray | None = None, rate_var: np.ndarray | None = None,
+           base_linear: np.ndarray | None = None, base_angular: np.ndarray | None = None) -> "JointGaussians":
+        """One configuration ``angles`` ``(50,)`` without angle variance: optionally with rates (and their
+        variance) and base velocities; what is not given is zero."""
+        zeros50, zeros3 = np.zeros(len(angles)), np.zeros(3)
+        return cls(angles, zeros50, zeros50 if rates is None else rates, zeros50 if rate_var is None else rate_var,
+                   zeros3 if base_linear is None else base_linear, zeros3,
+                   zeros3 if base_angular is None else base_angular, zeros3)
+
+
+def state_point_distributions(body: BodyModel, gaussians: JointGaussians, points: SurfacePoints,
                               spread: float = 0.0) -> PointDistributions:
-    """Carry ``S`` joint-space Gaussians (means and diagonal variances, ``(S, 50)`` / ``(S, 3)``) to the
-    ``P`` model points in the base frame (see the module docstring)."""
+    """Carry ``S`` joint-space Gaussians to the ``P`` model points in the base frame (see the module
+    docstring); ``spread``: the surface patch's std (m)."""
+    g = gaussians
+    angles, angle_var, rates, rate_var = g.angles, g.angle_var, g.rates, g.rate_var
+    base_linear, base_linear_var, base_angular, base_angular_var = (g.base_linear, g.base_linear_var,
+                                                                    g.base_angular, g.base_angular_var)
     angles = np.atleast_2d(angles)
     S = len(angles)
     qpos = np.zeros((S, 57))
@@ -141,9 +175,7 @@ def database_point_distributions(db: MotionDatabase, body: BodyModel, points: Su
     mean, var = db.means_.reshape(C * K, D), db.covars_.reshape(C * K, D)
     if spread is None:
         spread = patch_std(body, len(points.body))
-    return state_point_distributions(
-        body, mean[:, ANGLES], var[:, ANGLES], mean[:, ANGLE_RATES], var[:, ANGLE_RATES],
-        mean[:, BASE_LINEAR], var[:, BASE_LINEAR], mean[:, BASE_ANGULAR], var[:, BASE_ANGULAR], points, spread)
+    return state_point_distributions(body, JointGaussians.from_features(mean, var), points, spread)
 
 
 @dataclass(frozen=True)
@@ -159,7 +191,7 @@ class ImageDistributions:
     visibility: np.ndarray
 
 
-def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDistributions,
+def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDistributions, *,
              camera_motion: np.ndarray | None = None, state_index: np.ndarray | None = None,
              occlusion: tuple[float, float] | None = None) -> ImageDistributions:
     """Project body-frame point distributions for ``H`` base poses ``rot (H, 3, 3)``, ``trans (H, 3)``.
@@ -264,6 +296,33 @@ def _project_kernel(rot, trans, pose_index, state_index, pos, pos_cov, vel, vel_
 
 
 @numba.njit(cache=True)
+def _bucket(pix, visibility, lo_u, lo_v, reach, nu, nv, cell, count, members):
+    """Sort the visible points into a grid of ``nu x nv`` cells of ``reach`` pixels from ``(lo_u, lo_v)``:
+    point ``q``'s cell ``cell[q]`` (-1 when invisible); the points of cell ``c`` are
+    ``members[count[c]:count[c + 1]]`` (a counting sort)."""
+    P = len(visibility)
+    n_cells = nu * nv
+    for c in range(n_cells + 1):
+        count[c] = 0
+    for q in range(P):
+        cell[q] = -1
+        if visibility[q] > 0.0:
+            c = min(int((pix[q, 0] - lo_u) / reach), nu - 1) * nv + min(int((pix[q, 1] - lo_v) / reach), nv - 1)
+            cell[q] = c
+            count[c + 1] += 1
+    for c in range(n_cells):
+        count[c + 1] += count[c]
+    for q in range(P):
+        c = cell[q]
+        if c >= 0:
+            members[count[c]] = q
+            count[c] += 1
+    for c in range(n_cells - 1, -1, -1):       # count[c] was advanced to the cell's end: shift back
+        count[c + 1] = count[c]
+    count[0] = 0
+
+
+@numba.njit(cache=True)
 def _self_occlusion(pix, depth, focal_radius, min_gap, visibility, cell, count, members):
     """Multiply ``visibility`` ``(P,)`` by the footprints of the nearer visible points (see ``to_image``).
 
@@ -284,27 +343,9 @@ def _self_occlusion(pix, depth, focal_radius, min_gap, visibility, cell, count, 
         return
     nu = int((hi_u - lo_u) / reach) + 1
     nv = int((hi_v - lo_v) / reach) + 1
-    n_cells = nu * nv
-    if n_cells + 1 > len(count):                # a spread-out hypothesis: fall back to one row of cells
-        nu, nv, n_cells = 1, 1, 1
-    for c in range(n_cells + 1):
-        count[c] = 0
-    for q in range(P):
-        cell[q] = -1
-        if visibility[q] > 0.0:
-            c = min(int((pix[q, 0] - lo_u) / reach), nu - 1) * nv + min(int((pix[q, 1] - lo_v) / reach), nv - 1)
-            cell[q] = c
-            count[c + 1] += 1
-    for c in range(n_cells):
-        count[c + 1] += count[c]
-    for q in range(P):
-        c = cell[q]
-        if c >= 0:
-            members[count[c]] = q
-            count[c] += 1
-    for c in range(n_cells - 1, -1, -1):       # count[c] was advanced to the cell's end: shift back
-        count[c + 1] = count[c]
-    count[0] = 0
+    if nu * nv + 1 > len(count):                # a spread-out hypothesis: fall back to one row of cells
+        nu, nv = 1, 1
+    _bucket(pix, visibility, lo_u, lo_v, reach, nu, nv, cell, count, members)
     for p in range(P):
         if cell[p] < 0:
             continue

@@ -1,9 +1,13 @@
-"""The evaluation's methods, registered by name: what each is handed, what it produces, and how it is scored.
+"""The evaluation's methods, registered by name: what each is handed, the estimate it produces, and the one
+scorer that turns an estimate and the ground truth into a row.
 
-A method is one function ``score(inputs: RunInputs) -> dict`` of metric columns, registered with ``method``.
-The pipeline runs every method a scenario lists through this registry, the scenario validates ``methods``
-against it, and the tables, plots and report take their order and their ``given`` / ``–`` cells from it:
-adding a method is one registration here.
+A method is one function ``estimate(inputs: RunInputs, engine: EngineRuns) -> Estimate | None`` (None: nothing
+to estimate, e.g. a camera that saw no flow), registered with ``method``. ``score`` turns the estimate into the
+row's metric columns: recognition (or, on a stream, the stream columns) when the method recognises, recovery
+when it recovers, the reproduction columns when it reproduces; a column a method does not produce is left
+empty. The pipeline runs every method a scenario lists through this registry, the scenario validates
+``methods`` against it, and the tables, plots and report take their order and their ``given`` / ``–`` cells
+from it: adding a method is one registration here.
 
 - ``full``: the engine from flows alone (pose tracks, recognition, recovery), causal: frame t from frames <= t;
 - ``full_smoothed``: the same run's offline estimate (the track with the most evidence at the end, its whole
@@ -12,9 +16,12 @@ adding a method is one registration here.
 - ``no_database``: per-frame fitting of the angles to the 2D points at the true baselink pose, without the
   HMM prior (what the database's prior adds, compared with ``gt_base``); no recognition;
 - ``joint_space``: forward recognition from the true joint-space features (the upper bound); no recovery;
-- ``reproduction`` (only when a scenario lists it): the engine from flows, then the recognised primitive's
+- ``reproduction`` (only when a scenario lists it): the ``full`` estimate, then the recognised primitive's
   reproduction along the recovered state path (``harness.engine.reproduction``), compared after dynamic time
   warping with the demonstration, beside the true class's mean trajectory (``REPRODUCTION_COLUMNS``).
+
+The engine runs at most once per run and pose source (``EngineRuns``): ``full``, ``full_smoothed`` and
+``reproduction`` share one run.
 
 On a stream (``RunInputs.labels`` given) the methods that recognise are scored per frame with the stream
 columns (``harness.evaluation.stream_metrics``) instead of one label per run; their recognised segments are kept
@@ -24,12 +31,13 @@ in the row (``segments_pred``) for the timeline plots.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
 from harness.body import BodyModel, SurfacePoints
-from harness.engine import MotionDatabase, Tracker, TrackerConfig, motion_features, recognize_features
+from harness.engine import Estimate, MotionDatabase, Tracker, TrackerConfig, motion_features, recognize_features
 from harness.engine.recovery import fit_without_database
 from harness.engine.switching import STREAM_MIN_FRAMES, online_labels, recognize_stream_features
 from harness.evaluation import metrics
@@ -38,6 +46,7 @@ from harness.motion.stream import label_segments
 from harness.motion import Motion
 from harness.observation import Observation
 from harness.scene.simulate import GroundTruth
+from harness.scene.spec import SceneSpec
 
 RECOGNITION_COLUMNS = ("class_pred", "correct", "frame_accuracy", "time_to_correct_s", "log_p_true",
                        "accuracy_curve")
@@ -56,10 +65,10 @@ class RunInputs:
 
     body: the engine's nominal body. subject: the observed body (``body`` itself unless the scenario scales
     the subject). motion: the test motion as the subject performed it. truth: the scene's ground truth.
-    tracker: a fresh engine (own random stream) on every call. labels: a stream's true label per frame
-    ``(T,)`` (``label`` is then ``"stream"``), None for one primitive. engine: the engine's settings.
-    estimates: the engine's estimates of this run by kind (``full`` and ``full_smoothed`` share one run of the
-    engine).
+    tracker: a fresh engine (own random generator) on every call. labels: a stream's true label per frame
+    ``(T,)`` (``label`` is then ``"stream"``), None for one primitive. engine: the engine's settings. scene: the
+    run's scene spec as drawn (camera azimuth, marker and occluder seeds), and performed: the test motion as the
+    nominal body performed it; with them the scene can be built again (``harness run-video``) without drawing.
     """
 
     key: str
@@ -74,35 +83,59 @@ class RunInputs:
     tracker: Callable[[], Tracker]
     labels: np.ndarray | None = None
     engine: TrackerConfig = TrackerConfig()
-    estimates: dict = field(default_factory=dict)
+    scene: SceneSpec | None = None
+    performed: Motion | None = None
 
     @property
     def recognition_columns(self) -> tuple[str, ...]:
         return RECOGNITION_COLUMNS if self.labels is None else STREAM_RECOGNITION_COLUMNS
 
 
+class EngineRuns:
+    """The engine's runs of one evaluation run, each made on first use and kept: from the flows alone, and
+    handed the true base pose (None when the camera saw no flow)."""
+
+    def __init__(self, inputs: RunInputs):
+        self.inputs = inputs
+
+    @cached_property
+    def from_flows(self) -> Estimate | None:
+        return self._run(None)
+
+    @cached_property
+    def given_pose(self) -> Estimate | None:
+        return self._run((self.inputs.truth.base_pos_cam, self.inputs.truth.base_quat_cam))
+
+    def _run(self, base_pose) -> Estimate | None:
+        if self.inputs.obs.counts.sum() == 0:        # nothing seen: nothing to score (NaN, counted as missing)
+            return None
+        return self.inputs.tracker().run(self.inputs.obs, base_pose=base_pose)
+
+
 @dataclass(frozen=True)
 class Method:
-    """A registered method. recognises/recovers: whether it produces the recognition and recovery columns
-    (``–`` in the report otherwise). given: columns it is handed rather than estimating (``given``)."""
+    """A registered method. recognises/recovers/reproduces: which columns its estimate is scored on (``–`` in
+    the report otherwise). given: columns it is handed rather than estimating (``given``)."""
 
     name: str
-    score: Callable[[RunInputs], dict]
+    estimate: Callable[[RunInputs, EngineRuns], Estimate | None]
     recognises: bool
     recovers: bool
     given: tuple[str, ...] = ()
     default: bool = True
+    reproduces: bool = False
 
 
 METHODS: dict[str, Method] = {}
 
 
-def method(name: str, recognises: bool, recovers: bool, given: tuple[str, ...] = (), default: bool = True):
-    """Register ``score(inputs) -> columns`` under ``name`` (registration order is the report's order).
-    ``default``: run when a scenario does not list its methods."""
-    def register(score: Callable[[RunInputs], dict]):
-        METHODS[name] = Method(name, score, recognises, recovers, given, default)
-        return score
+def method(name: str, recognises: bool, recovers: bool, given: tuple[str, ...] = (), default: bool = True,
+           reproduces: bool = False):
+    """Register ``estimate(inputs, engine) -> Estimate | None`` under ``name`` (registration order is the
+    report's order). ``default``: run when a scenario does not list its methods."""
+    def register(estimate: Callable[[RunInputs, EngineRuns], Estimate | None]):
+        METHODS[name] = Method(name, estimate, recognises, recovers, given, default, reproduces)
+        return estimate
     return register
 
 
@@ -126,7 +159,7 @@ def produces(name: str, column: str) -> bool:
     if column in RECOVERY_COLUMNS:
         return m.recovers
     if column in REPRODUCTION_COLUMNS:
-        return name == "reproduction"
+        return m.reproduces
     return True
 
 
@@ -200,66 +233,80 @@ def not_produced(columns: tuple[str, ...]) -> dict:
             for c in columns}
 
 
-def _engine(inputs: RunInputs, base_pose, smoothed: bool = False) -> dict:
-    if inputs.obs.counts.sum() == 0:        # nothing seen: nothing to score (NaN, counted as missing)
-        return not_produced(inputs.recognition_columns + RECOVERY_COLUMNS)
-    key = "given" if base_pose is not None else "flows"
-    if key not in inputs.estimates:
-        inputs.estimates[key] = inputs.tracker().run(inputs.obs, base_pose=base_pose)
-    est = inputs.estimates[key]
-    post, qpos = ((est.smoothed_class_posterior, est.smoothed_qpos) if smoothed else (est.class_posterior, est.qpos))
-    return _recognition(inputs, post, inputs.obs.fps) | recovery_scores(inputs, qpos)
-
-
-@method("full", recognises=True, recovers=True)
-def _full(inputs: RunInputs) -> dict:
-    return _engine(inputs, None)
-
-
-@method("full_smoothed", recognises=True, recovers=True)
-def _full_smoothed(inputs: RunInputs) -> dict:
-    return _engine(inputs, None, smoothed=True)
-
-
-@method("gt_base", recognises=True, recovers=True, given=BASE_POSE_COLUMNS)
-def _gt_base(inputs: RunInputs) -> dict:
-    return _engine(inputs, (inputs.truth.base_pos_cam, inputs.truth.base_quat_cam))
-
-
-@method("no_database", recognises=False, recovers=True, given=BASE_POSE_COLUMNS)
-def _no_database(inputs: RunInputs) -> dict:
-    tracker = inputs.tracker()
-    truth = inputs.truth
-    angles = fit_without_database(inputs.body, tracker.model.points, inputs.obs.intrinsics, inputs.obs.flows,
-                                  truth.base_pos_cam, truth.base_quat_cam, tracker.config.noise_px,
-                                  tracker.model.spread)
-    qpos = metrics.camera_qpos(inputs.body, truth.base_pos_cam, truth.base_quat_cam, angles)
-    return not_produced(inputs.recognition_columns) | recovery_scores(inputs, qpos)
-
-
-@method("joint_space", recognises=True, recovers=False)
-def _joint_space(inputs: RunInputs) -> dict:
-    features = motion_features(inputs.motion)
-    switch = inputs.engine.primitive_switch
-    post = (recognize_stream_features(inputs.db, features, switch, inputs.engine.start_spread) if switch > 0
-            else recognize_features(inputs.db, features))
-    return _recognition(inputs, post, inputs.motion.fps) | not_produced(RECOVERY_COLUMNS)
-
-
-@method("reproduction", recognises=False, recovers=False, default=False)
-def _reproduction(inputs: RunInputs) -> dict:
-    from harness.engine.reproduction import class_mean, reproduce, state_path
+def reproduction_scores(inputs: RunInputs, est: Estimate) -> dict:
+    """The reproduction columns of an estimate carrying a reproduction, against the demonstration and beside
+    the true class's mean trajectory."""
+    from harness.engine.reproduction import class_mean
     from harness.evaluation.reproduction_metrics import dtw_angle_rms_deg, dtw_mpjpe_mm
 
-    if inputs.labels is not None or inputs.obs.counts.sum() == 0:    # one primitive per run, and something seen
-        return {c: np.nan for c in REPRODUCTION_COLUMNS}
-    est = inputs.tracker().run(inputs.obs)
-    label, fps, demo = est.predicted, inputs.obs.fps, inputs.motion
-    repro = reproduce(inputs.db, inputs.body, label, state_path(inputs.db, est.joint_posterior, label), fps,
-                      angles=est.qpos[:, 7:])
+    repro, demo, fps = est.reproduction, inputs.motion, inputs.obs.fps
     mean = class_mean(inputs.db, inputs.body, inputs.label, demo.n_frames, fps)
     out = {"repro_dtw_deg": dtw_angle_rms_deg(repro.angles, demo.angles),
            "repro_dtw_mm": dtw_mpjpe_mm(inputs.body, repro.qpos, inputs.subject, demo.qpos),
            "mean_dtw_deg": dtw_angle_rms_deg(mean.angles, demo.angles),
            "mean_dtw_mm": dtw_mpjpe_mm(inputs.body, mean.qpos, inputs.subject, demo.qpos)}
-    return {"class_pred": label} | out | {"repro_beats_mean": int(out["repro_dtw_deg"] < out["mean_dtw_deg"])}
+    return {"class_pred": est.predicted} | out | {"repro_beats_mean": int(out["repro_dtw_deg"] < out["mean_dtw_deg"])}
+
+
+def score(m: Method, est: Estimate | None, inputs: RunInputs) -> dict:
+    """The metric columns of method ``m``'s estimate of one run against its ground truth (module docstring).
+    A reproducing method is scored on its reproduction alone."""
+    if m.reproduces:
+        if est is None or est.reproduction is None:
+            return {c: np.nan for c in REPRODUCTION_COLUMNS}
+        return reproduction_scores(inputs, est)
+    recognised = (_recognition(inputs, est.class_posterior, inputs.obs.fps) if m.recognises and est is not None
+                  else not_produced(inputs.recognition_columns))
+    recovered = (recovery_scores(inputs, est.qpos) if m.recovers and est is not None
+                 else not_produced(RECOVERY_COLUMNS))
+    return recognised | recovered
+
+
+# --- the methods ------------------------------------------------------------------------------------------
+
+@method("full", recognises=True, recovers=True)
+def _full(inputs: RunInputs, engine: EngineRuns) -> Estimate | None:
+    return engine.from_flows
+
+
+@method("full_smoothed", recognises=True, recovers=True)
+def _full_smoothed(inputs: RunInputs, engine: EngineRuns) -> Estimate | None:
+    return None if engine.from_flows is None else engine.from_flows.offline
+
+
+@method("gt_base", recognises=True, recovers=True, given=BASE_POSE_COLUMNS)
+def _gt_base(inputs: RunInputs, engine: EngineRuns) -> Estimate | None:
+    return engine.given_pose
+
+
+@method("no_database", recognises=False, recovers=True, given=BASE_POSE_COLUMNS)
+def _no_database(inputs: RunInputs, engine: EngineRuns) -> Estimate:
+    tracker = inputs.tracker()
+    truth = inputs.truth
+    angles = fit_without_database(inputs.body, tracker.model.points, inputs.obs.intrinsics, inputs.obs.flows,
+                                  truth.base_pos_cam, truth.base_quat_cam, noise_px=tracker.config.noise_px,
+                                  spread=tracker.model.spread)
+    qpos = metrics.camera_qpos(inputs.body, truth.base_pos_cam, truth.base_quat_cam, angles)
+    return Estimate(np.asarray(inputs.classes), qpos=qpos)
+
+
+@method("joint_space", recognises=True, recovers=False)
+def _joint_space(inputs: RunInputs, engine: EngineRuns) -> Estimate:
+    features = motion_features(inputs.motion)
+    switch = inputs.engine.primitive_switch
+    post = (recognize_stream_features(inputs.db, features, switch, inputs.engine.start_spread) if switch > 0
+            else recognize_features(inputs.db, features))
+    return Estimate(np.asarray(inputs.classes), class_posterior=post)
+
+
+@method("reproduction", recognises=False, recovers=False, default=False, reproduces=True)
+def _reproduction(inputs: RunInputs, engine: EngineRuns) -> Estimate | None:
+    from harness.engine.reproduction import reproduce, state_path
+
+    est = engine.from_flows
+    if inputs.labels is not None or est is None:       # one primitive per run, and something seen
+        return None
+    label = est.predicted
+    repro = reproduce(inputs.db, inputs.body, label, state_path(inputs.db, est.joint_posterior, label),
+                      inputs.obs.fps, angles=est.qpos[:, 7:])
+    return replace(est, reproduction=repro)

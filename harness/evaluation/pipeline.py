@@ -2,47 +2,46 @@
 the scenario (``harness.evaluation.methods``), score it against the ground truth.
 ``run_one(RunSpec) -> list[dict]``, one row per method.
 
-Random streams per run (all from the run's seed): the test motion, the scene (markers, azimuth, subject,
+Random generators per run (all from the run's seed): the test motion, the scene (markers, azimuth, subject,
 noise), and the engine's particle filter, so that adding a method never changes another method's numbers.
 
+The database is keyed by its training set: ``training_motions`` is the one rule of what trains a run's
+database (its exclusions keep the test motion out), and the cache key is computed from the identities of the
+motions it returns (``training_identity``: source, class, subject, demo, frames, frame rate and a hash of the
+configurations), so that no exclusion rule can change without the key changing.
+
 Nothing is kept between runs but caches by value, whose entries are never changed: the body model, capture
-sets (by directory, manifest and frame rate), databases (by their cache key) and engine prototypes (by
-database and ``TrackerConfig``). Each run gets its own engine: a shallow copy of the prototype with the run's
-random stream (``Tracker.reset`` builds all per-sequence state anew on the copy), so runs in one process give
-the rows they give alone, in any order (tested).
+sets (by directory, manifest and frame rate), procedural training sets, databases (by their cache key) and
+engine prototypes (by database and ``TrackerConfig``). Each run gets its own engine: a shallow copy of the
+prototype with the run's random generator (``Tracker.reset`` builds all per-sequence state anew on the copy),
+so runs in one process give the rows they give alone, in any order (tested).
 """
 
 from __future__ import annotations
 
 import copy
+import hashlib
 import time
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from harness.body import BodyModel
+from harness.body import nominal_body
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
-from harness.engine.database import CYCLIC_PRIMITIVES
 from harness.evaluation.cache import cached, path_for_key
-from harness.evaluation.methods import METHODS, RunInputs, segment_list
+from harness.evaluation.methods import METHODS, EngineRuns, RunInputs, score, segment_list
 from harness.evaluation.runner import RunError, RunSpec
 from harness.evaluation.scenario import Scenario, scene_spec, tracker_config
 from harness.motion import Motion
-from harness.motion.performer import demonstrations, training_set
+from harness.motion.performer import CYCLIC, demonstrations, training_set
 from harness.motion.stream import TRANSITION, Stream, capture_stream, procedural_stream
-from harness.observation import Observation
-from harness.scene.simulate import GroundTruth, simulate
-from harness.streams import named_stream
+from harness.randomness import named_generator
+from harness.scene.simulate import simulate
 from harness.version import code_version
 
 TEST_SUBJECT_OFFSET = 1000                         # held-out procedural demos use subjects never used in training
-DATABASE_FORMAT = 1
-
-
-@lru_cache(maxsize=1)
-def nominal_body() -> BodyModel:
-    return BodyModel.load()
+DATABASE_FORMAT = 2
 
 
 # --- motions --------------------------------------------------------------------------------------------
@@ -60,6 +59,11 @@ def _captures(cfg: Scenario) -> tuple[tuple, tuple[Motion, ...]]:
     return _capture_set(str(cfg.database.capture_dir), cfg.database.manifest, float(cfg.database.fps))
 
 
+@lru_cache(maxsize=4)
+def _procedural_training(classes: tuple[str, ...], demos: int, seed: int, fps: float) -> tuple[Motion, ...]:
+    return tuple(training_set(classes, demos, seed, fps, body=nominal_body()))
+
+
 @lru_cache(maxsize=2)
 def _capture_stream(capture_dir: str, manifest: str, take: str, fps: float) -> Stream:
     return capture_stream(capture_dir, take, Path(capture_dir) / manifest, fps, nominal_body())
@@ -75,7 +79,7 @@ def test_stream(run: RunSpec) -> Stream | None:
     if stream.takes is not None:
         return _capture_stream(str(cfg.database.capture_dir), cfg.database.manifest, stream.takes[run.test_demo],
                                float(cfg.database.fps))
-    return procedural_stream(named_stream(run.seed, "motion"), classes=cfg.classes, primitives=stream.primitives,
+    return procedural_stream(named_generator(run.seed, "motion"), classes=cfg.classes, primitives=stream.primitives,
                              transition_s=stream.transition_s, fps=cfg.database.fps,
                              subject=TEST_SUBJECT_OFFSET + run.test_demo, body=nominal_body(),
                              demo=str(run.test_demo))
@@ -94,15 +98,18 @@ def test_motion(run: RunSpec) -> Motion:
         if run.test_demo >= len(demos):
             raise RunError(f"run {run.key}: class {run.test_class!r} has {len(demos)} capture demos")
         return motions[demos[run.test_demo]]
-    return demonstrations(run.test_class, 1, named_stream(run.seed, "motion"), fps=cfg.database.fps,
+    return demonstrations(run.test_class, 1, named_generator(run.seed, "motion"), fps=cfg.database.fps,
                           subject=TEST_SUBJECT_OFFSET + run.test_demo, body=nominal_body())[0]
 
 
 def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
-    """Procedural: ``performer.training_set``, plus (with ``database.with_captures``) every capture demo of
-    another subject than the test motion's. Capture: every manifest demo of the scenario's classes except the
-    test demo (leave_one_out) or except the test subject's demos (cross_subject); for a capture stream,
-    except every row of its take."""
+    """What trains the database of a run testing ``test`` (None: the scenario's whole training set); the one
+    place of the exclusion rules.
+
+    Procedural: ``performer.training_set`` (subjects never used for tests), plus (with
+    ``database.with_captures``) every capture demo of another subject than the test motion's. Capture: every
+    manifest demo of the scenario's classes except the test demo (leave_one_out) or except the test subject's
+    demos (cross_subject); for a capture stream, except every row of its take."""
     db = cfg.database
     if db.source == "capture":
         motions = [m for m in _captures(cfg)[1] if m.label in cfg.classes]
@@ -115,30 +122,28 @@ def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
         elif test is not None and cfg.test.split == "cross_subject":
             motions = [m for m in motions if m.subject != test.subject]
         return motions
-    out = training_set(cfg.classes, db.train_demos, db.seed, db.fps, body=nominal_body())
+    out = list(_procedural_training(tuple(cfg.classes), db.train_demos, db.seed, float(db.fps)))
     if db.with_captures:
         out += [m for m in _captures(cfg)[1]
                 if m.label in cfg.classes and (test is None or m.subject != test.subject)]
     return out
 
 
-def database_key(cfg: Scenario, test: Motion | None) -> dict:
-    """What a database depends on (its cache key), the code version included."""
+def training_identity(motion: Motion) -> dict:
+    """What tells one training motion from any other: its source (a capture's file and frame range), class,
+    subject, demo, length, frame rate and a hash of its configurations (which also changes when the file behind
+    a capture, its retargeting or the performer changes)."""
+    digest = hashlib.sha256(np.ascontiguousarray(motion.qpos, dtype=float).tobytes()).hexdigest()[:16]
+    return {"source": motion.source, "label": motion.label, "subject": str(motion.subject), "demo": str(motion.demo),
+            "frames": int(motion.n_frames), "fps": float(motion.fps), "qpos_sha256": digest}
+
+
+def database_key(cfg: Scenario, training: list[Motion]) -> dict:
+    """What a database depends on (its cache key): the identities of its training motions, the HMM settings
+    and the code version."""
     db = cfg.database
-    key = {"source": db.source, "classes": list(cfg.classes), "states": db.states, "fps": db.fps,
-           "cyclic": list(CYCLIC_PRIMITIVES), "format": DATABASE_FORMAT, "code": code_version()}
-    if db.source == "procedural":
-        key |= {"train_demos": db.train_demos, "seed": db.seed}
-        if db.with_captures:
-            key |= {"capture_dir": str(db.capture_dir), "manifest": db.manifest,
-                    "with_captures_without_subject": None if test is None else test.subject}
-    else:
-        # Cross-subject databases depend on the test subject only: one per subject, not one per demo.
-        without = [] if test is None else ([test.subject] if cfg.test.split == "cross_subject"
-                                           else [test.label, test.demo, test.subject])
-        key |= {"capture_dir": str(db.capture_dir), "manifest": db.manifest, "split": cfg.test.split,
-                "without": without}
-    return key
+    return {"states": db.states, "cyclic": list(CYCLIC), "format": DATABASE_FORMAT, "code": code_version(),
+            "training": [training_identity(m) for m in training]}
 
 
 @lru_cache(maxsize=8)
@@ -147,11 +152,12 @@ def _stored_database(path: str) -> MotionDatabase:
 
 
 def database(cfg: Scenario, test: Motion | None, cache_dir: str | Path) -> tuple[MotionDatabase, str]:
-    """The run's database (trained once per distinct key, cached on disk) and its cache path."""
-    path = path_for_key(Path(cache_dir) / "databases", database_key(cfg, test))
+    """The run's database (trained once per distinct training set, cached on disk) and its cache path."""
+    training = training_motions(cfg, test)
+    path = path_for_key(Path(cache_dir) / "databases", database_key(cfg, training))
 
     def build():
-        return MotionDatabase(n_states=cfg.database.states, cyclic=CYCLIC_PRIMITIVES).fit(training_motions(cfg, test))
+        return MotionDatabase(n_states=cfg.database.states, cyclic=CYCLIC).fit(training)
 
     cached(path, build, lambda obj, fh: np.savez(fh, **obj.to_arrays()), lambda p: None)
     return _stored_database(str(path)), str(path)
@@ -173,28 +179,16 @@ def fresh_tracker(database_path: str, config: TrackerConfig, rng: np.random.Gene
 
 def clear_caches() -> None:
     """Forget every cached value (tests use it to run a run as if alone in a new process)."""
-    for f in (nominal_body, _capture_set, _capture_stream, _stored_database, _prototype):
+    for f in (nominal_body, _capture_set, _procedural_training, _capture_stream, _stored_database, _prototype):
         f.cache_clear()
 
 
 # --- one run --------------------------------------------------------------------------------------------
 
-def simulate_run(run: RunSpec, motion: Motion | None = None
-                 ) -> tuple[Motion, Observation, GroundTruth, BodyModel]:
-    """The run's scene, deterministically from its seed: the observed motion (as the subject performed it),
-    the observation, the ground truth and the subject's body. ``motion``: the run's test motion if known."""
-    cfg = run.config
-    motion = test_motion(run) if motion is None else motion
-    scene_rng = named_stream(run.seed, "scene")
-    spec = scene_spec(cfg, scene_rng)
-    obs, truth = simulate(motion, spec, scene_rng, nominal_body())
-    subject = nominal_body() if np.all(truth.segment_scale == 1.0) else nominal_body().scaled(truth.segment_scale)
-    observed = Motion(truth.qpos, motion.fps, motion.label, motion.subject, motion.demo, motion.source)
-    return observed, obs, truth, subject
-
-
 def run_inputs(run: RunSpec) -> RunInputs:
-    """Everything the methods of one run use (also what ``harness run-video`` re-creates)."""
+    """Everything the methods of one run use (also what ``harness run-video`` re-creates): the test motion
+    played in the run's scene (the scene spec drawn from the run's scene generator, once), the database, the
+    ground truth and the engine factory."""
     cfg = run.config
     if run.code and run.code != code_version():
         raise RunError(f"run {run.key}: this process runs code {code_version()}, the run was planned with "
@@ -207,12 +201,16 @@ def run_inputs(run: RunSpec) -> RunInputs:
         [] if run.test_class in db.classes_ else [run.test_class])
     if missing:
         raise RunError(f"run {run.key}: class {missing[0]!r} has no training demonstration in this split")
-    observed, obs, truth, subject = simulate_run(run, motion)
+    scene_rng = named_generator(run.seed, "scene")
+    spec = scene_spec(cfg, scene_rng)
+    obs, truth = simulate(motion, spec, scene_rng, nominal_body())
+    subject = nominal_body() if np.all(truth.segment_scale == 1.0) else nominal_body().scaled(truth.segment_scale)
+    observed = Motion(truth.qpos, motion.fps, motion.label, motion.subject, motion.demo, motion.source)
     tc = tracker_config(cfg)
     return RunInputs(key=run.key, label=run.test_class, classes=tuple(db.classes_), body=nominal_body(),
                      subject=subject, db=db, motion=observed, obs=obs, truth=truth,
-                     tracker=lambda: fresh_tracker(db_path, tc, named_stream(run.seed, "engine")),
-                     labels=labels, engine=tc)
+                     tracker=lambda: fresh_tracker(db_path, tc, named_generator(run.seed, "engine")),
+                     labels=labels, engine=tc, scene=spec, performed=motion)
 
 
 def run_one(run: RunSpec) -> list[dict]:
@@ -223,14 +221,16 @@ def run_one(run: RunSpec) -> list[dict]:
               "obstacle_occlusion": float(truth.obstacle_fraction.mean())}
     if inputs.labels is not None:
         common["segments_true"] = segment_list(inputs.labels)
+    engine = EngineRuns(inputs)
     rows = []
     for name in run.config.methods:
         t0 = time.perf_counter()
-        scores = METHODS[name].score(inputs)
+        m = METHODS[name]
+        scores = score(m, m.estimate(inputs, engine), inputs)
         ms = 1e3 * (time.perf_counter() - t0) / max(len(obs), 1)
         rows.append({"method": name} | common | scores | {"ms_per_frame": ms})
     return rows
 
 
-__all__ = ["clear_caches", "database", "fresh_tracker", "nominal_body", "run_inputs", "run_one",
-           "simulate_run", "test_motion", "test_stream", "training_motions"]
+__all__ = ["clear_caches", "database", "database_key", "fresh_tracker", "run_inputs", "run_one", "test_motion",
+           "test_stream", "training_identity", "training_motions"]

@@ -1,7 +1,8 @@
 """``harness run-video RESULTS_DIR RUN_KEY --out run.mp4``: watch one run of an evaluation.
 
 The run is done again from its stored scenario (``RESULTS_DIR/scenario.json``) and seed (the pipeline is
-deterministic: same seed, same observation and estimate). Each video frame is the scene camera's image with the
+deterministic: same seed, same observation and estimate), and the chosen method's own estimate is shown (for
+``full_smoothed`` its smoothed path). Each video frame is the scene camera's image with the
 observed flows (yellow arrows, red for outliers) and the obstacles, the true body (green) and the engine's
 estimate (magenta) drawn over it as skeletons (joint centres joined parent to child), and beside it the class
 posterior over time (the true class drawn thick, a cursor at the current frame).
@@ -22,7 +23,12 @@ from harness.errors import HarnessError
 TRUE_RGB = (40, 220, 60)
 ESTIMATE_RGB = (240, 40, 220)
 PANEL_WIDTH = 360
-ENGINE_METHODS = ("full", "gt_base")
+
+def recovering_methods() -> tuple[str, ...]:
+    """The registered methods whose estimate has a body to draw."""
+    from harness.evaluation.methods import METHODS
+
+    return tuple(name for name, m in METHODS.items() if m.recovers)
 
 
 class RunVideoError(HarnessError):
@@ -33,7 +39,8 @@ def _args(p: argparse.ArgumentParser) -> None:
     p.add_argument("results_dir", help="a scenario's results directory (results/<name>)")
     p.add_argument("run_key", help="the run's key, e.g. c000/r000/walk/d008 (column run_key of runs.csv)")
     p.add_argument("--out", required=True, help="video file (.mp4 or .gif)")
-    p.add_argument("--method", default="full", choices=ENGINE_METHODS, help="the engine run to show (default full)")
+    p.add_argument("--method", default="full", choices=recovering_methods(),
+                   help="the method whose estimate is shown (default full)")
     p.add_argument("--png", default=None, help="also write frame --frame as a PNG (to look at one still)")
     p.add_argument("--frame", type=int, default=None, help="frame written by --png (default: the middle)")
 
@@ -106,30 +113,42 @@ def posterior_panel(post: np.ndarray, classes, label: str, t: int, height: int, 
     return panel
 
 
+def method_estimate(results_dir: str | Path, run_key: str, method: str):
+    """A stored run done again: its ``RunSpec``, its ``RunInputs`` and method ``method``'s own estimate."""
+    from harness.evaluation import pipeline
+    from harness.evaluation.methods import METHODS, EngineRuns
+
+    _, run = find_run(Path(results_dir), run_key)
+    inputs = pipeline.run_inputs(run)
+    est = METHODS[method].estimate(inputs, EngineRuns(inputs))
+    if est is None or est.qpos is None:
+        raise RunVideoError(f"run {run_key}: the camera saw no flow, there is no estimate to show")
+    return run, inputs, est
+
+
+def blank_panel(text: str, height: int, width: int = PANEL_WIDTH) -> np.ndarray:
+    """A white panel ``(height, width, 3) uint8`` with one line of text, beside a method without posteriors."""
+    import cv2
+
+    panel = np.full((height, width, 3), 255, dtype=np.uint8)
+    cv2.putText(panel, text, (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (0, 0, 0), 1, cv2.LINE_AA)
+    return panel
+
+
 def render_run(results_dir: str | Path, run_key: str, method: str = "full") -> tuple[list[np.ndarray], float, str]:
     """The frames of one run's video, its frame rate and a one-line summary."""
     import cv2
 
-    from harness.body import body_origins
-    from harness.evaluation import metrics, pipeline
-    from harness.evaluation.scenario import scene_spec
+    from harness.body import body_origins, nominal_body
+    from harness.evaluation import metrics
     from harness.pinhole import project
     from harness.scene.rendered import render_frames
     from harness.scene.setup import build_setup
-    from harness.streams import named_stream
     from harness.video import draw_flows
 
-    results_dir = Path(results_dir)
-    _, run = find_run(results_dir, run_key)
-    inputs = pipeline.run_inputs(run)
+    run, inputs, est = method_estimate(results_dir, run_key, method)
     obs, truth, body = inputs.obs, inputs.truth, inputs.body
-    if obs.counts.sum() == 0:
-        raise RunVideoError(f"run {run_key}: the camera saw no flow, there is no estimate to show")
-    pose = (truth.base_pos_cam, truth.base_quat_cam) if method == "gt_base" else None
-    est = inputs.tracker().run(obs, base_pose=pose)
-    # The same scene again: the scene stream's first draws are the spec's (pipeline.simulate_run).
-    setup = build_setup(pipeline.test_motion(run), scene_spec(run.config, named_stream(run.seed, "scene")),
-                        pipeline.nominal_body())
+    setup = build_setup(inputs.performed, inputs.scene, nominal_body())
     intr = obs.intrinsics
     true_cam = body_origins(inputs.subject, metrics.camera_qpos(inputs.subject, truth.base_pos_cam,
                                                                 truth.base_quat_cam, truth.qpos[:, 7:]))
@@ -147,9 +166,11 @@ def render_run(results_dir: str | Path, run_key: str, method: str = "full") -> t
         true = run.test_class if inputs.labels is None else str(inputs.labels[t])
         cv2.putText(img, f"{run_key}  t={t / obs.fps:.2f}s  true {true} (green), {method} (magenta)",
                     (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (255, 255, 255), 1, cv2.LINE_AA)
-        frames.append(np.concatenate([img, posterior_panel(est.class_posterior, classes, true, t,
-                                                           img.shape[0])], axis=1))
-    summary = (f"{run_key}: true {run.test_class}, recognised {est.predicted}; obstacle occlusion "
+        panel = (posterior_panel(est.class_posterior, classes, true, t, img.shape[0])
+                 if est.class_posterior is not None else blank_panel(f"{method}: no recognition", img.shape[0]))
+        frames.append(np.concatenate([img, panel], axis=1))
+    recognised = est.predicted if est.class_posterior is not None else "nothing (the method does not recognise)"
+    summary = (f"{run_key}: true {run.test_class}, recognised {recognised}; obstacle occlusion "
                f"{truth.obstacle_fraction.mean():.2f}, self-occlusion {truth.self_fraction.mean():.2f}")
     return frames, obs.fps, summary
 

@@ -203,11 +203,11 @@ def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunctio
         if todo:
             from tqdm import tqdm
 
-            stream = (_execute_dask(todo, run_fn, scheduler) if scheduler
-                      else _execute_local(todo, run_fn, jobs))
+            finished = (_execute_dask(todo, run_fn, scheduler) if scheduler
+                        else _execute_local(todo, run_fn, jobs))
             bar = tqdm(total=len(todo), desc=scenario.name, unit="run", disable=not progress, leave=False)
             try:
-                for run, rows in stream:
+                for run, rows in finished:
                     journal.append(run.key, _checked_rows(run, rows))
                     bar.update(1)
             finally:

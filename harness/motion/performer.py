@@ -25,22 +25,25 @@ Every demonstration starts at x = y = 0 with heading 0 (facing +x).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import mujoco
 import numpy as np
 
 from harness import geometry
-from harness.body import BodyModel, forward_points, geom_z_range
+from harness.body import BodyModel, forward_points, geom_z_range, nominal_body
 from harness.body.model import JOINT_NAMES
 from harness.motion import repertoire  # noqa: F401  (registers the primitives)
 from harness.motion.calibration import NEUTRAL, ClassCalibration, default_calibration
 from harness.motion.motion import Motion
-from harness.motion.primitives import PerformerError, Plan, Take, lookup, mirror, registered, soft_clip
-from harness.streams import named_stream
+from harness.motion.primitives import (PerformerError, Plan, Take, cyclic_primitives, lookup, mirror, registered,
+                                       soft_clip)
+from harness.randomness import named_generator
 
 CLASSES: tuple[str, ...] = ("walk", "run", "jump", "squat", "kick", "punch", "wave", "bow", "throw",
                             "jumping_jack")
+# The periodic primitives (registered with ``cyclic=True``): every tool that learns a database passes them as its
+# HMMs' wrapping classes; capture sets use the same class names.
+CYCLIC: tuple[str, ...] = cyclic_primitives()
 STANDING_HEIGHT = 0.95          # m, pelvis height of the zero pose with the soles on the floor
 GRAVITY = 9.81                  # m/s^2, for the airborne arcs
 CONTACT_BLEND = 0.01            # m, height difference over which support passes from one foot to the other
@@ -117,11 +120,6 @@ def subject_style(subject: int) -> SubjectStyle:
     pitch, laterality = float(g.normal(0.0, 2.0)), float(g.uniform())
     return SubjectStyle(int(subject), tempo, amplitude, POSTURE_GAIN * k.angles[0].copy(), pitch, laterality,
                         float(g.uniform(*CARRIAGE_RANGE)))
-
-
-@lru_cache(maxsize=1)
-def _default_body() -> BodyModel:
-    return BodyModel.load()
 
 
 def _orientation(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
@@ -213,7 +211,7 @@ def perform(label: str, rng: np.random.Generator, fps: float = 30.0, subject: in
     fn = lookup(label)
     if not (np.isfinite(fps) and fps > 0):
         raise PerformerError(f"fps must be positive, got {fps}")
-    body = _default_body() if body is None else body
+    body = nominal_body() if body is None else body
     cal = default_calibration().get(label, NEUTRAL) if calibration is None else calibration
     if subject is None:
         subject = int(rng.integers(0, 1000))
@@ -251,7 +249,7 @@ def guarantee_violations(motion: Motion, body: BodyModel | None = None, margin: 
     ``TRAVEL_LIMIT`` of its start, a walk no faster than ``WALK_SPEED_LIMIT``. ``margin`` tightens the
     travel and speed bounds by that fraction, ``clearance`` (m) the floor bound of every part but the feet.
     Empty when all hold; the calibration fit (``harness.motion.realism``) keeps its tables within them."""
-    body = _default_body() if body is None else body
+    body = nominal_body() if body is None else body
     out = []
     lows = geom_z_range(body, motion.qpos)[:, :, 0].min(axis=0)
     feet = np.isin(body.body_geoms, [mujoco.mj_name2id(body.model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in _FOOT_GEOMS])
@@ -288,12 +286,12 @@ if set(CLASSES) != set(registered()):      # a primitive added to the repertoire
 def training_set(classes: tuple[str, ...] | list[str], demos: int, seed: int, fps: float = 30.0,
                  body: BodyModel | None = None) -> list[Motion]:
     """The procedural training set of a database: ``demos`` demonstrations of each class, by subjects
-    ``0 .. demos-1``, class ``c`` drawn from ``named_stream(seed, "train/<c>")`` (so a class's demonstrations
+    ``0 .. demos-1``, class ``c`` drawn from ``named_generator(seed, "train/<c>")`` (so a class's demonstrations
     do not depend on which other classes are listed). The one recipe ``harness train-database`` and the
     evaluation share: "a database trained with seed 0" means the same thing in both."""
     out: list[Motion] = []
     for c in classes:
-        rng = named_stream(seed, f"train/{c}")
+        rng = named_generator(seed, f"train/{c}")
         out += [demonstrations(c, 1, rng, fps=fps, subject=s, body=body)[0] for s in range(demos)]
     return out
 

@@ -243,16 +243,25 @@ def window(t: np.ndarray, start: float, stop: float) -> np.ndarray:
 
 PrimitiveFn = Callable[[Take], Plan]
 _REGISTRY: dict[str, PrimitiveFn] = {}
+_CYCLIC: set[str] = set()
 
 
-def primitive(name: str):
-    """Register ``plan(take) -> Plan`` as the motion class ``name``."""
+def primitive(name: str, cyclic: bool = False):
+    """Register ``plan(take) -> Plan`` as the motion class ``name``; ``cyclic``: a periodic primitive (a gait,
+    a wave), whose HMM may wrap from its last state to its first."""
     def register(fn: PrimitiveFn) -> PrimitiveFn:
         if name in _REGISTRY:
             raise ValueError(f"motion primitive {name!r} is registered twice")
         _REGISTRY[name] = fn
+        if cyclic:
+            _CYCLIC.add(name)
         return fn
     return register
+
+
+def cyclic_primitives() -> tuple[str, ...]:
+    """Names of the registered periodic primitives, in registration order."""
+    return tuple(n for n in _REGISTRY if n in _CYCLIC)
 
 
 def registered() -> tuple[str, ...]:

@@ -57,7 +57,7 @@ def _gait(k: Take, phase: np.ndarray, hip: float, knee_swing: float, knee_stance
         k.add(side + "foot_y", a * (push * pb - 10.0 * bump(ph, np.pi / 2 - 0.2, 8.0)))
 
 
-@primitive("walk")
+@primitive("walk", cyclic=True)
 def walk(k: Take) -> Plan:
     # From a stroll (straight arms) to a power walk (long stride, bent elbows, leaning into it).
     brisk = k.rng.uniform(0.0, 1.0)
@@ -71,7 +71,7 @@ def walk(k: Take) -> Plan:
     return k.plan()
 
 
-@primitive("run")
+@primitive("run", cyclic=True)
 def run(k: Take) -> Plan:
     # Intensity from a relaxed jog (short stride, low heels, arms half bent) to a stride.
     effort = k.rng.uniform(0.0, 1.0)
@@ -268,7 +268,7 @@ def throw(k: Take) -> Plan:
     return k.plan()
 
 
-@primitive("wave")
+@primitive("wave", cyclic=True)
 def wave(k: Take) -> Plan:
     """Right-hand greeting: raise the arm to the side with the forearm up, wag it about two times."""
     a = k.amp
@@ -295,7 +295,7 @@ def wave(k: Take) -> Plan:
     return k.plan()
 
 
-@primitive("jumping_jack")
+@primitive("jumping_jack", cyclic=True)
 def jumping_jack(k: Take) -> Plan:
     """Hop the feet apart while the arms sweep overhead, hop back; about two cycles."""
     a = k.amp

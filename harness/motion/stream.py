@@ -36,13 +36,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from harness import geometry
-from harness.body import BodyModel
+from harness.body import BodyModel, nominal_body
 from harness.body.grounding import ground
 from harness.errors import HarnessError
 from harness.io import save_npz_atomic
@@ -130,11 +129,6 @@ class Stream:
 
 
 # --- procedural streams ----------------------------------------------------------------------------------
-
-@lru_cache(maxsize=1)
-def _nominal_body() -> BodyModel:
-    return BodyModel.load()
-
 
 def _min_jerk(s: np.ndarray) -> np.ndarray:
     return s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
@@ -235,7 +229,7 @@ def procedural_stream(rng: np.random.Generator, classes: tuple[str, ...] | list[
     t_lo, t_hi = transition_s
     if not (np.isfinite(t_lo) and np.isfinite(t_hi) and 0 < t_lo <= t_hi):
         raise StreamError(f"transition_s must be [min, max] seconds with 0 < min <= max, got {list(transition_s)}")
-    body = _nominal_body() if body is None else body
+    body = nominal_body() if body is None else body
     n = int(rng.integers(lo, hi + 1))
     order = [str(rng.choice(classes))]
     while len(order) < n:
@@ -260,7 +254,7 @@ def join(motions: list[Motion], windows: list[int], body: BodyModel | None = Non
     fps = motions[0].fps
     if any(m.fps != fps for m in motions):
         raise StreamError(f"motions of one stream must share one frame rate, got {sorted({m.fps for m in motions})}")
-    body = _nominal_body() if body is None else body
+    body = nominal_body() if body is None else body
     parts = [_part(body, m) for m in motions]
     windows = list(windows)
     angles, quats, pos, labels = [], [], [], []

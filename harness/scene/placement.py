@@ -15,7 +15,7 @@ from functools import lru_cache
 import mujoco
 import numpy as np
 
-from harness.body import BodyModel
+from harness.body import nominal_body
 from harness.body.surface import geom_sdf
 from harness.scene.occluders import custom_obstacles
 from harness.scene.spec import CameraSpec, OccluderSpec, SceneError, SubjectSpec
@@ -25,7 +25,7 @@ from harness.scene.spec import CameraSpec, OccluderSpec, SceneError, SubjectSpec
 def _standing_geoms() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[str, ...]]:
     """The nominal body's geoms in the zero pose, base at the origin's xy: types, sizes, centres, rotations,
     names."""
-    body = BodyModel.load()
+    body = nominal_body()
     q = body.zero_qpos()
     q[:2] = 0.0
     d = body.data

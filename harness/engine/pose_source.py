@@ -1,0 +1,222 @@
+"""Where the tracks' base poses come from: the stages of the loop that are the pose source's own.
+
+A pose source answers, each frame, for the tracks it made (``PoseSource``):
+
+- ``start(frame)``: the tracks of the first frame with flows;
+- ``predict(frame, tracks)``: move each track's pose hypotheses to this frame (its belief has moved already);
+- ``weigh(frame, tracks)``: weigh them by the frame's flows and set each track's pose estimate;
+- ``manage(tracks)``: after recognition, the tracks that go on;
+- ``known_pose(frame)``: the base pose it knows without tracking (a given pose), or None;
+- ``fixed``: whether recovery must keep the base pose (it is given).
+
+Two sources: ``ParticleTracks`` (the engine: pose tracks of particle clouds, spawned at the first frame's
+heaviest orientation mode, its turns and its twin) and ``GivenPose`` (the baseline handed the true pose).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from harness import geometry
+from harness.engine.frame import Frame
+from harness.engine.logsum import logsumexp
+from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
+                                            initial_cloud, level_world, systematic_resample)
+from harness.engine.scoring import Scorer
+from harness.engine.track import Track, new_recognizer, prune_and_merge, turned, twin
+from harness.engine.transform import PointDistributions
+from harness.errors import EngineError
+
+
+class PoseSource(Protocol):
+    """The pose source's part of the loop (module docstring)."""
+
+    fixed: bool
+
+    def start(self, frame: Frame) -> list[Track]: ...
+
+    def predict(self, frame: Frame, tracks: list[Track]) -> None: ...
+
+    def weigh(self, frame: Frame, tracks: list[Track]) -> None: ...
+
+    def manage(self, tracks: list[Track]) -> list[Track]: ...
+
+    def known_pose(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None: ...
+
+
+class GivenPose:
+    """One track at a given base pose per frame, ``positions (T, 3)`` and ``quats (T, 4)`` in the camera frame
+    (the ground-truth-pose baseline): recognition and recovery without tracking."""
+
+    fixed = True
+
+    def __init__(self, scorer: Scorer, positions: np.ndarray, quats: np.ndarray):
+        if len(positions) != len(quats):
+            raise EngineError(f"a given pose needs as many positions as orientations, got {len(positions)} and "
+                              f"{len(quats)}")
+        self.scorer = scorer
+        self.positions, self.quats = positions, quats
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def known_pose(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        if frame.index >= len(self):
+            raise EngineError(f"the given pose has {len(self)} frames; frame {frame.index} has none")
+        return self.positions[frame.index], self.quats[frame.index]
+
+    def start(self, frame: Frame) -> list[Track]:
+        return [Track(0, "given", new_recognizer(self.scorer.model.db, self.scorer.config))]
+
+    def predict(self, frame: Frame, tracks: list[Track]) -> None:
+        pass
+
+    def weigh(self, frame: Frame, tracks: list[Track]) -> None:
+        for track in tracks:
+            track.place(*self.known_pose(frame))
+
+    def manage(self, tracks: list[Track]) -> list[Track]:
+        return tracks
+
+
+class ParticleTracks:
+    """The engine's pose tracks, each a particle cloud with its own belief (``track``), sharing
+    ``config.particles`` particles: spawned at the first frame with flows, moved by their beliefs, weighed by
+    the flows under their beliefs, pruned and merged by evidence."""
+
+    fixed = False
+
+    def __init__(self, scorer: Scorer, rng: np.random.Generator):
+        self.scorer = scorer
+        self.rng = rng
+        self._spawned = 0
+
+    def known_pose(self, frame: Frame) -> None:
+        return None
+
+    # --- the first frame ------------------------------------------------------------------------
+
+    def start(self, frame: Frame) -> list[Track]:
+        """A wide cloud over the coarse prior, weighed by the first frame's flows, and the tracks spawned from it."""
+        return self.spawn(self.first_cloud(frame), frame.gravity)
+
+    def first_cloud(self, frame: Frame) -> ParticleCloud:
+        """``init_factor`` times the particles from the coarse prior, weighed coarse to fine: every particle
+        under the prior as one moment-matched blob, then the best ``init_keep`` of them under a term per
+        primitive (``class_mixture_log_likelihood``)."""
+        cfg, model, rng = self.scorer.config, self.scorer.model, self.rng
+        n_wide = cfg.particles * cfg.init_factor
+        cameras = (camera_pitch(rng.uniform(*np.deg2rad(cfg.init_elevation), n_wide)) if frame.gravity is None
+                   else level_world(frame.gravity))
+        wide = initial_cloud(frame.intr, frame.flows, n_wide, rng, depth_range=cfg.init_distance,
+                             world_from_camera=cameras, body_height=model.body_height)
+        prior = new_recognizer(model.db, cfg).posterior
+        blob = self.scorer.image(frame, geometry.to_matrix(wide.quats), wide.positions,
+                                 model.dists.mixture(prior.ravel()))
+        coarse = self.scorer.frame_log_likelihood(frame, blob, cfg.n_eff_filter)
+        wide = wide.take(np.argsort(coarse)[::-1][:int(round(cfg.init_keep * n_wide))])
+        wide.reweight(self.class_mixture_log_likelihood(frame, wide, prior))
+        return wide
+
+    def class_mixture_log_likelihood(self, frame: Frame, cloud: ParticleCloud, prior: np.ndarray) -> np.ndarray:
+        """``(N,)`` tempered log-likelihood of poses under the prior ``(C, K)`` over primitives, each primitive its
+        own moment-matched belief: ``log sum_c p(c) p(y | x, c)``. One blob for all primitives would be so wide
+        that the first frame could not tell depth; one term per state would cost ``C K`` times more."""
+        model = self.scorer.model
+        C, K = model.n_classes, model.n_states
+        mixes = PointDistributions.concatenate([model.dists.take(np.arange(c * K, (c + 1) * K)).mixture(prior[c])
+                                                for c in range(C)])
+        n = len(cloud)
+        img = self.scorer.image(frame, np.tile(geometry.to_matrix(cloud.quats), (C, 1, 1)),
+                                np.tile(cloud.positions, (C, 1)), mixes, np.repeat(np.arange(C), n))
+        ll = self.scorer.frame_log_likelihood(frame, img, self.scorer.config.n_eff_filter).reshape(C, n)
+        return logsumexp(ll + np.log(prior.sum(axis=1))[:, None], axis=0)
+
+    def spawn(self, wide: ParticleCloud, gravity: np.ndarray | None) -> list[Track]:
+        """The tracks of a weighted first cloud: its heaviest orientation mode (the lead), the lead's turns
+        about the body's vertical, and its twin, each with an equal share of the particles. A track starts from
+        the cloud's own particles within 45 degrees of its orientation (their positions fit it); where they hold
+        fewer than ``min_spawn_ess`` effective particles, from the lead's particles turned to it."""
+        cfg, rng = self.scorer.config, self.rng
+        _, lead = wide.estimate()
+        spawn = [("lead", lead)] + [(f"turn{a:+g}", turned(lead[None], np.deg2rad(a))[0]) for a in cfg.track_turns]
+        if cfg.twin_track:
+            spawn.append(("twin", twin(lead[None], gravity)[0]))
+        n_each = cfg.particles // len(spawn)
+        tracks = []
+        for origin, centre in spawn:
+            near = geometry.angle_between(wide.quats, centre[None]) <= np.deg2rad(45.0)
+            weights = np.where(near, wide.weights, 0.0)
+            if weights.sum() > 0 and effective_sample_size(weights) >= cfg.min_spawn_ess:
+                cloud = wide.take(systematic_resample(weights, rng, n_each))
+            else:
+                lead_near = geometry.angle_between(wide.quats, lead[None]) <= np.deg2rad(45.0)
+                cloud = wide.take(systematic_resample(np.where(lead_near, wide.weights, 0.0), rng, n_each))
+                rel = geometry.multiply(geometry.conjugate(lead), centre)     # lead -> centre, body frame
+                cloud.quats = geometry.multiply(cloud.quats, np.broadcast_to(rel, cloud.quats.shape))
+            tracks.append(Track(self._spawned, origin, new_recognizer(self.scorer.model.db, cfg), cloud))
+            self._spawned += 1
+        return tracks
+
+    # --- every frame ----------------------------------------------------------------------------
+
+    def process_noise(self, gravity: np.ndarray | None) -> ProcessNoise:
+        cfg = self.scorer.config
+        if gravity is None:
+            return ProcessNoise(cfg.position_noise, cfg.rotation_noise)
+        return ProcessNoise(cfg.position_noise, cfg.rotation_noise, cfg.tilt_noise, -gravity)
+
+    def predict(self, frame: Frame, tracks: list[Track]) -> None:
+        n_each = self.scorer.config.particles // len(tracks)
+        noise = self.process_noise(frame.gravity)
+        for track in tracks:
+            track.move(frame, self.scorer.model.dists, n_each, noise, self.rng, self.scorer.config)
+
+    def log_likelihoods(self, frame: Frame, tracks: list[Track]) -> list[np.ndarray]:
+        """Each track's particles' log-likelihoods ``(N_j,)`` under its own belief, a mixture over its likely
+        primitives (``Track.class_mixtures``): all tracks and primitives in one kernel call."""
+        cfg = self.scorer.config
+        mixtures = [t.class_mixtures(self.scorer.model.dists, cfg.weigh_classes, cfg.weigh_class_mass)
+                    for t in tracks]
+        pose_index, state_index = mixture_pairs([len(t.cloud) for t in tracks], [len(w) for w, _ in mixtures])
+        mixes = PointDistributions.concatenate([m for _, m in mixtures])
+        pos = np.concatenate([t.cloud.positions for t in tracks])[pose_index]
+        quat = np.concatenate([t.cloud.quats for t in tracks])[pose_index]
+        img = self.scorer.image(frame, geometry.to_matrix(quat), pos, mixes, state_index)
+        ll = self.scorer.frame_log_likelihood(frame, img, cfg.n_eff_filter)
+        if frame.camera_height is not None:
+            ll = ll + self.scorer.floor_log_prior(frame, mixes.pos[state_index], quat, pos)
+        out, at = [], 0
+        for (log_w, _), track in zip(mixtures, tracks):
+            n, k = len(track.cloud), len(log_w)
+            out.append(logsumexp(ll[at:at + n * k].reshape(k, n) + log_w[:, None], axis=0))
+            at += n * k
+        return out
+
+    def weigh(self, frame: Frame, tracks: list[Track]) -> None:
+        if frame.has_flows:
+            for track, ll in zip(tracks, self.log_likelihoods(frame, tracks)):
+                track.reweight(ll)
+        for track in tracks:
+            track.settle(self.scorer.config.refine_position_std)
+
+    def manage(self, tracks: list[Track]) -> list[Track]:
+        cfg = self.scorer.config
+        return prune_and_merge(tracks, cfg.track_prune_nats, cfg.track_merge_m, cfg.track_merge_deg)
+
+
+def mixture_pairs(particles: list[int], terms: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """The (particle, mixture term) pairs of a batched weighing: track ``j`` has ``particles[j]`` particles
+    and ``terms[j]`` terms; its pairs run term by term, each over all its particles. Returns the particle index
+    into the tracks' concatenated particles and the term index into their concatenated terms, ``(sum_j n_j
+    k_j,)`` each."""
+    pose_index, state_index = [], []
+    start, term = 0, 0
+    for n, k in zip(particles, terms):
+        for c in range(term, term + k):
+            pose_index.append(np.arange(start, start + n))
+            state_index.append(np.full(n, c))
+        start, term = start + n, term + k
+    return np.concatenate(pose_index), np.concatenate(state_index)

@@ -1,0 +1,117 @@
+"""Pose hypotheses scored against one frame's flows, with the engine's settings.
+
+``Scorer`` binds the engine's model (database, body, model points) to its settings, so that a stage asks one
+question of one frame: project these distributions at these poses (with the body's self-occlusion and the
+camera's own motion), score the flows under them (with the open region's held points: negative evidence),
+temper a frame's sum, or fold a frame into a recognizer at a pose. ``path_evidence`` is the evidence a track
+that followed a given pose path would gather; ``floor_log_prior`` the camera prior's floor term.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from harness import geometry
+from harness.engine.config import TrackerConfig
+from harness.engine.frame import Frame, observation_frames
+from harness.engine.likelihood import FlowModel, flow_log_likelihoods, responsibilities, tempered
+from harness.engine.model import EngineModel
+from harness.engine.recognition import Recognizer
+from harness.engine.transform import ImageDistributions, PointDistributions, to_image
+from harness.observation import Observation
+
+
+@dataclass(frozen=True)
+class Scorer:
+    """The engine's model and settings, asked per frame (see the module docstring)."""
+
+    model: EngineModel
+    config: TrackerConfig
+
+    @property
+    def occlusion(self) -> tuple[float, float] | None:
+        """``to_image``'s self-occlusion parameters (footprint radius, depth gap; metres), or None."""
+        if not self.config.self_occlusion:
+            return None
+        return 2.0 * self.model.spread * self.config.occlusion_radius, self.config.occlusion_depth
+
+    def flow_model(self, frame: Frame) -> FlowModel:
+        cfg = self.config
+        return FlowModel(cfg.noise_px, frame.fps, frame.intr.width, frame.intr.height, cfg.outlier_prob,
+                         weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing)
+
+    def image(self, frame: Frame, rot: np.ndarray, pos: np.ndarray, dists: PointDistributions,
+              state_index: np.ndarray | None = None) -> ImageDistributions:
+        """Distributions projected at base poses ``rot (H, 3, 3)``, ``pos (H, 3)`` (pairing as ``to_image``)."""
+        return to_image(frame.intr, rot, pos, dists, camera_motion=frame.camera_motion, state_index=state_index,
+                        occlusion=self.occlusion)
+
+    def per_flow(self, frame: Frame, img: ImageDistributions) -> np.ndarray:
+        """``(H, M)`` log-likelihood of each of the frame's flows under each hypothesis."""
+        return flow_log_likelihoods(frame.flows, img, self.flow_model(frame), held=frame.held(img.pix))
+
+    def frame_log_likelihood(self, frame: Frame, img: ImageDistributions, n_eff: float) -> np.ndarray:
+        """``(H,)`` tempered log-likelihood of the frame under each hypothesis (``likelihood.tempered``)."""
+        return tempered(self.per_flow(frame, img), n_eff)
+
+    def responsibilities(self, frame: Frame, img: ImageDistributions) -> np.ndarray:
+        """``(M, P)`` soft assignment of the frame's flows to the model points of one hypothesis."""
+        return responsibilities(frame.flows, img, self.flow_model(frame), held=frame.held(img.pix))
+
+    def recognise(self, frame: Frame, recognizer: Recognizer, position: np.ndarray, quat: np.ndarray) -> float:
+        """One recognition step at a base pose (camera frame): every active state's tempered emission, folded
+        into ``recognizer``. Returns the recursion's normaliser (0 for a frame without flows)."""
+        if not frame.has_flows:
+            return recognizer.update(None)
+        active = np.flatnonzero(recognizer.active().ravel())
+        img = self.image(frame, geometry.to_matrix(quat)[None], np.asarray(position)[None],
+                         self.model.dists.take(active))
+        log_b = np.zeros(recognizer.log_alpha.size)
+        log_b[active] = self.frame_log_likelihood(frame, img, self.config.n_eff_recognition)
+        return recognizer.update(log_b.reshape(recognizer.log_alpha.shape))
+
+    def floor_log_prior(self, frame: Frame, points: np.ndarray, quats: np.ndarray,
+                        positions: np.ndarray) -> np.ndarray:
+        """``(N,)`` the floor term of the camera prior for base poses (0 without a known camera height)."""
+        if frame.camera_height is None:
+            return np.zeros(len(positions))
+        return floor_log_prior(points, quats, positions, -frame.gravity, frame.camera_height, self.config)
+
+
+def floor_log_prior(points: np.ndarray, quats: np.ndarray, positions: np.ndarray, up: np.ndarray,
+                    camera_height: float, config: TrackerConfig) -> np.ndarray:
+    """``(N,)`` log prior of base poses from a known floor: the body's lowest point (of its model points'
+    means ``points`` ``(N, P, 3)``, base frame) is on the floor, or in flight above it.
+
+    With ``h`` the lowest point's height above the floor (camera height plus the point's camera-frame
+    coordinate along ``up``): ``p(h) = (1 - f) N(h; 0, s^2) + f U(h; 0, H)`` for ``h >= 0``, the Gaussian tail
+    below, with ``f = floor_flight``, ``s = floor_std``, ``H = floor_flight_height``.
+    """
+    rot = geometry.to_matrix(quats)
+    heights = camera_height + np.einsum("i,nij,npj->np", up, rot, points) + (positions @ up)[:, None]
+    h = heights.min(axis=1)
+    cfg = config
+    log_ground = np.log1p(-cfg.floor_flight) - 0.5 * (h / cfg.floor_std) ** 2 - np.log(np.sqrt(2 * np.pi) * cfg.floor_std)
+    log_flight = np.where((h >= 0) & (h <= cfg.floor_flight_height), np.log(cfg.floor_flight / cfg.floor_flight_height),
+                          -np.inf)
+    return np.logaddexp(log_ground, log_flight)
+
+
+def path_evidence(model: EngineModel, config: TrackerConfig, obs: Observation, positions: np.ndarray,
+                  quats: np.ndarray) -> np.ndarray:
+    """``(T,)`` per-frame evidence ``log p(y_t | y_<t, path)`` of a given base pose path ``(T, 3)``, ``(T, 4)``
+    (camera frame): what a track that followed exactly this path would accumulate."""
+    scorer = Scorer(model, config)
+    rec = Recognizer(model.db, config.start_spread, config.prune)
+    out = np.zeros(len(obs))
+    started = False
+    for frame in observation_frames(obs, config):
+        if not started and not frame.has_flows:
+            continue
+        rec.predict()       # a no-op before the first update
+        started = True
+        t = frame.index
+        out[t] = scorer.recognise(frame, rec, positions[t], quats[t])
+    return out

@@ -1,0 +1,175 @@
+"""The engine's loop against independent computations: the batched weighing against a per-track, per-class
+loop; the prune and merge rule; the spawn and its fallback; live stepping against ``run``; the padding of the
+frames before the first flows and before a track's first record; the given-pose source."""
+
+import numpy as np
+import pytest
+
+from engine_fixtures import CLASSES, synthetic_demos, synthetic_observation
+from harness import geometry
+from harness.engine import MotionDatabase, Tracker, TrackerConfig
+from harness.engine.logsum import logsumexp
+from harness.engine.particle_filter import ParticleCloud, camera_pitch, upright_orientations
+from harness.engine.pose_source import GivenPose, ParticleTracks, mixture_pairs
+from harness.engine.records import FrameRecord, TrackRecord, causal_estimate, track_path
+from harness.engine.recognition import Recognizer
+from harness.engine.track import Track, prune_and_merge, turned
+from harness.observation import Observation
+
+
+@pytest.fixture(scope="module")
+def trained(body):
+    rng = np.random.default_rng(1)
+    train = [m for c in CLASSES for m in synthetic_demos(body, c, 4, rng)]
+    return MotionDatabase(n_states=6, cyclic=("march", "wave"), n_iter=5).fit(train)
+
+
+@pytest.fixture(scope="module")
+def clip(body):
+    m = synthetic_demos(body, "march", 1, np.random.default_rng(3), seconds=0.5)[0]
+    return synthetic_observation(body, m, np.random.default_rng(4))
+
+
+def _stepped(tracker, obs, frames, **reset):
+    tracker.reset(obs.intrinsics, obs.fps, **reset)
+    for t in range(frames):
+        tracker.step(obs.flows[t])
+
+
+def test_batched_weighing_equals_a_loop_over_tracks_and_classes(body, trained, clip):
+    """All tracks' particles and belief terms in one kernel call give, per track, exactly the per-particle
+    ``log sum_c w_c p(y | x, c)`` of a loop over tracks and terms, each term projected on its own."""
+    obs, _, _ = clip
+    tracker = Tracker(trained, body, TrackerConfig(particles=60, model_points=40, weigh_class_mass=0.9999),
+                      rng=np.random.default_rng(2))
+    _stepped(tracker, obs, 6, rng=np.random.default_rng(2))
+    tracks, source, scorer = tracker.tracks, tracker.source, tracker.scorer
+    assert len(tracks) >= 2
+    for track in tracks:
+        track.predict_belief()
+    frame = tracker._frames.next(obs.flows[6])
+    source.predict(frame, tracks)
+    batched = source.log_likelihoods(frame, tracks)
+    terms = []
+    for track, got in zip(tracks, batched):
+        log_w, mixes = track.class_mixtures(scorer.model.dists, scorer.config.weigh_classes,
+                                            scorer.config.weigh_class_mass)
+        terms.append(len(log_w))
+        rot = geometry.to_matrix(track.cloud.quats)
+        each = [scorer.frame_log_likelihood(frame, scorer.image(frame, rot, track.cloud.positions, mixes.take([c])),
+                                            scorer.config.n_eff_filter) for c in range(len(log_w))]
+        np.testing.assert_allclose(got, logsumexp(np.array(each) + log_w[:, None], axis=0), rtol=1e-12, atol=1e-12)
+    assert max(terms) >= 2                  # the case that needs the packing: several terms in one track
+    # The packing itself: track j's pairs run term by term over all its particles.
+    pose, state = mixture_pairs([2, 3], [2, 1])
+    assert pose.tolist() == [0, 1, 0, 1, 2, 3, 4] and state.tolist() == [0, 0, 1, 1, 2, 2, 2]
+
+
+def _track(track_id, evidence, position, heading_deg):
+    t = Track(track_id, "lead", None)
+    t.log_evidence = evidence
+    t.place(np.asarray(position, float), upright_orientations(np.deg2rad([heading_deg]), camera_pitch(0.0))[0])
+    return t
+
+
+def test_prune_drops_the_far_behind_and_merge_keeps_the_better_of_two_that_met():
+    a = _track(0, -100.0, [0, 0, 4], 0)
+    b = _track(1, -129.9, [1, 0, 4], 90)         # within 30 nats: kept
+    c = _track(2, -130.1, [2, 0, 4], 180)        # beyond 30 nats: dropped
+    d = _track(3, -105.0, [0.2, 0, 4], 20)       # met a (0.2 m, 20 deg): merged into a
+    e = _track(4, -101.0, [0.1, 0, 4], 60)       # near a in position, not in orientation: kept
+    kept = prune_and_merge([b, c, d, a, e], prune_nats=30.0, merge_m=0.3, merge_deg=30.0)
+    assert [t.id for t in kept] == [0, 4, 1]     # most evidence first
+    # The better of two that met stays, whichever comes first.
+    assert [t.id for t in prune_and_merge([d, a], 30.0, 0.3, 30.0)] == [0]
+
+
+def test_spawn_takes_each_orientations_own_particles_or_the_leads_turned(body, trained):
+    cfg = TrackerConfig(particles=50, track_turns=(90.0, 180.0), twin_track=False)
+    tracker = Tracker(trained, body, cfg)
+    source = ParticleTracks(tracker.scorer, np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    n = 200
+    pos = np.array([0.0, 0.5, 4.0]) + rng.normal(0, 0.1, (n, 3))
+    heading = np.where(np.arange(n) < 140, 0.3, 0.3 + np.pi) + rng.normal(0, 0.02, n)   # a mode and its half turn
+    quats = upright_orientations(heading, camera_pitch(0.1))
+    weights = np.where(np.arange(n) < 140, 2.0, 1.0)           # the first mode is the heavier: the lead
+    wide = ParticleCloud(pos, quats, np.log(weights / weights.sum()))
+    lead, quarter, half = source.spawn(wide, None)
+    assert (lead.origin, quarter.origin, half.origin) == ("lead", "turn+90", "turn+180")
+    assert len(lead.cloud) == len(quarter.cloud) == len(half.cloud) == cfg.particles // 3
+    rows = {tuple(p): i for i, p in enumerate(pos)}
+    # The half turn has particles of its own (60 of 200, many effective ones): their own poses.
+    own = [rows[tuple(p)] for p in half.cloud.positions]
+    assert min(own) >= 140
+    np.testing.assert_array_equal(half.cloud.quats, quats[own])
+    # Nothing is near the quarter turn: the lead's particles, each turned by 90 degrees about its own vertical.
+    parents = [rows[tuple(p)] for p in quarter.cloud.positions]
+    assert max(parents) < 140
+    np.testing.assert_allclose(np.abs(np.sum(quarter.cloud.quats * turned(quats[parents], np.pi / 2), axis=1)), 1.0,
+                               atol=1e-12)
+
+
+def test_stepping_frame_by_frame_gives_runs_estimate_with_leading_empty_frames(body, trained, clip):
+    """The live interface: ``reset`` + ``step`` with the camera's values, frame by frame, from frames without
+    flows on, equals ``run``; the frames before the first flows take the first estimate."""
+    obs, _, _ = clip
+    flows = [np.empty((0, 4))] * 3 + list(obs.flows)
+    padded = Observation(obs.fps, obs.intrinsics, flows)
+    cfg = TrackerConfig(particles=40, model_points=40)
+    whole = Tracker(trained, body, cfg, rng=np.random.default_rng(9)).run(padded)
+    live = Tracker(trained, body, cfg)
+    live.reset(padded.intrinsics, padded.fps, np.random.default_rng(9))
+    for f in flows:
+        live.step(f, None, None, None)
+    est = live.result()
+    for name in ("qpos", "class_posterior", "joint_posterior", "filter_pos", "n_tracks"):
+        np.testing.assert_array_equal(getattr(est, name), getattr(whole, name))
+    np.testing.assert_array_equal(est.offline.qpos, whole.offline.qpos)
+    first = 4                                   # frames 0-3 have no flow (frame 0 of every clip is empty)
+    np.testing.assert_array_equal(est.qpos[:first], np.repeat(est.qpos[first:first + 1], first, axis=0))
+    np.testing.assert_array_equal(est.class_posterior[:first], np.repeat(est.class_posterior[first:first + 1], first,
+                                                                         axis=0))
+    assert np.all(est.ms_per_frame[:first] == 0.0)
+
+
+def _record(track_id, evidence, qpos_value, posterior):
+    return TrackRecord(track_id, f"t{track_id}", evidence, np.full(3, qpos_value), np.array([1.0, 0, 0, 0]),
+                       np.full(57, qpos_value), np.asarray(posterior, float))
+
+
+def test_records_pad_with_the_first_estimate_and_the_known_pose():
+    """Frames before the first flows take the first estimate, with the base at the pose the source knew; a
+    track that started late is padded with its first configuration (the offline path)."""
+    known = (np.array([7.0, 8.0, 9.0]), np.array([0.0, 1.0, 0.0, 0.0]))
+    post = [[0.25, 0.25], [0.25, 0.25]]
+    records = [FrameRecord(0, (), known, 0.0), FrameRecord(1, (), None, 0.0),
+               FrameRecord(2, (_record(0, -1.0, 1.0, post),), None, 5.0),
+               FrameRecord(3, (_record(0, -3.0, 2.0, post), _record(1, -2.0, 3.0, [[0.5, 0.5], [0, 0]])), None, 5.0)]
+    est = causal_estimate(records, np.array(["a", "b"]), {})
+    np.testing.assert_array_equal(est.qpos[0, :7], np.r_[known[0], known[1]])
+    np.testing.assert_array_equal(est.qpos[0, 7:], np.full(50, 1.0))
+    np.testing.assert_array_equal(est.qpos[1], np.full(57, 1.0))
+    np.testing.assert_array_equal(est.qpos[3], np.full(57, 3.0))          # the leader: most evidence
+    share = np.exp([-3.0, -2.0]) / np.exp([-3.0, -2.0]).sum()
+    np.testing.assert_allclose(est.class_posterior[3], share[0] * np.array([0.5, 0.5]) + share[1] * np.array([1.0, 0]))
+    assert est.leader.tolist() == ["t0", "t0", "t0", "t1"]
+    qpos, pos, _ = track_path(records, 1)
+    np.testing.assert_array_equal(qpos[:, 7:], np.full((4, 50), 3.0))
+    np.testing.assert_array_equal(qpos[0, :3], known[0])                  # the known base, where known
+    np.testing.assert_array_equal(qpos[1:, :3], np.full((3, 3), 3.0))
+    np.testing.assert_array_equal(pos, np.full((4, 3), 3.0))
+
+
+def test_the_given_pose_source_holds_the_pose_and_recovery_moves_only_the_angles(body, trained, clip):
+    obs, base_pos, base_quat = clip
+    tracker = Tracker(trained, body, TrackerConfig(particles=20, model_points=40))
+    source = GivenPose(tracker.scorer, base_pos, base_quat)
+    tracker.reset(obs.intrinsics, obs.fps, source=source)
+    for f in obs.flows:
+        tracker.step(f)
+    est = tracker.result()
+    assert est.leader.tolist() == ["given"] * len(obs) and np.all(est.n_tracks == 1)
+    np.testing.assert_array_equal(est.qpos[:, :3], base_pos)
+    np.testing.assert_array_equal(est.filter_pos[1:], base_pos[1:])
+    assert isinstance(tracker.tracks[0].recognizer, Recognizer) and tracker.tracks[0].cloud is None
