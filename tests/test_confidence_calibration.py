@@ -130,6 +130,29 @@ def test_the_table_per_condition_and_pooled():
         cal.calibration_table(rows)
 
 
+def test_stored_rows_agree_with_the_other_recognition_columns(tmp_path):
+    """The tables' rows (fake pipeline) through metrics.json: NLL is minus the mean log_p_true, accuracy the
+    mean of correct, and the calibration table is written beside the others."""
+    from fakes import TINY, fake_run
+    from harness.evaluation.runner import run_scenario
+    from harness.evaluation.scenario import parse_scenario
+    from harness.evaluation.tables import write_tables
+
+    rows = run_scenario(parse_scenario(TINY), tmp_path / "tiny", fake_run, progress=False)
+    write_tables(rows, tmp_path / "tiny", ["markers.count", "occluders.amount"], ["walk", "run", "kick"], n_boot=50)
+    pooled = json.loads((tmp_path / "tiny" / "metrics.json").read_text())
+    for method in ("full", "gt_base"):
+        g = rows[rows["method"] == method]
+        assert pooled[f"{method}/nll"] == pytest.approx(-g["log_p_true"].mean())
+        assert pooled[f"{method}/brier"] > 0 and 0 < pooled[f"{method}/ece"] < 1
+    assert "no_database/ece" not in pooled
+    table = pd.read_csv(tmp_path / "tiny" / "calibration.csv")
+    full = table[table["method"] == "full"]
+    assert len(full) == 4 + 1                   # four conditions and all of them
+    by_cond = rows[rows["method"] == "full"].groupby("condition", sort=False)["correct"].mean()
+    assert full["accuracy"].iloc[:4].tolist() == pytest.approx(by_cond.tolist())
+
+
 def test_the_pipeline_stores_the_posterior_that_decides(tmp_path):
     """One real run: every recognising method's posterior_final is the last frame's posterior (its argmax is
     class_pred, its maximum the confidence, its true-class entry exp(log_p_true)), and methods that do not
