@@ -15,7 +15,7 @@ import harness
 
 PACKAGE_DIR = Path(harness.__file__).resolve().parent
 RESULTS_ONLY = ("evaluation/tables.py", "evaluation/plots.py", "evaluation/report.py", "evaluation/stats.py",
-                "evaluation/regress.py", "evaluation/run_video.py")
+                "evaluation/regress.py", "evaluation/run_video.py", "evaluation/calibration.py")
 
 
 @lru_cache(maxsize=1)

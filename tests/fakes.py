@@ -2,6 +2,8 @@
 
 import time
 
+import numpy as np
+
 from harness.evaluation import runner
 from harness.evaluation.methods import CURVE_POINTS, produces
 
@@ -22,12 +24,14 @@ def fake_run(run: runner.RunSpec) -> list[dict]:
         recognises = produces(method, "correct")
         nan = float("nan")
         curve = [int(v) for v in rng.random(CURVE_POINTS) < skill]
+        post = _posterior(classes, pred, rng.uniform(-5, 0)) if recognises else {}
         rows.append({"method": method, "class_true": run.test_class, "class_pred": pred if recognises else "",
                      "correct": int(right) if recognises else nan,
                      "frame_accuracy": float(rng.uniform(0.3, 1.0)) if recognises else nan,
                      "time_to_correct_s": float(rng.uniform(0, 2)) if right and recognises else nan,
-                     "log_p_true": float(rng.uniform(-5, 0)) if recognises else nan,
+                     "log_p_true": float(np.log(max(post[run.test_class], 1e-15))) if recognises else nan,
                      "accuracy_curve": curve if recognises else [],
+                     "confidence": max(post.values()) if recognises else nan, "posterior_final": post,
                      "angle_rms_deg": float(rng.gamma(4, 2)), "mpjpe_cam_mm": float(rng.gamma(9, 8)),
                      "mpjpe_abs_mm": float(rng.gamma(9, 20)), "base_pos_err_m": float(rng.gamma(3, 0.05)),
                      "base_depth_err_m": float(rng.gamma(2, 0.05)), "base_rot_err_deg": float(rng.gamma(3, 3)),
@@ -35,6 +39,13 @@ def fake_run(run: runner.RunSpec) -> list[dict]:
                      "self_occlusion": 0.2, "obstacle_occlusion": run.config.occluders.amount * 0.8,
                      "n_frames": 60, "mean_flows": float(run.config.markers.count) * 0.6})
     return rows
+
+
+def _posterior(classes: list[str], pred: str, u: float) -> dict:
+    """A final posterior whose argmax is ``pred``: it holds ``1/C + (1 - 1/C) e^u`` (u <= 0), the other classes
+    share the rest equally."""
+    top = 1.0 / len(classes) + (1.0 - 1.0 / len(classes)) * float(np.exp(u))
+    return {c: top if c == pred else (1.0 - top) / (len(classes) - 1) for c in classes}
 
 
 def slow_fake_run(run):

@@ -89,3 +89,29 @@ def test_a_given_base_pose_is_kept(body, trained):
     np.testing.assert_allclose(est.qpos[:, :3], base_pos, atol=1e-12)
     np.testing.assert_allclose(np.abs(np.sum(est.qpos[:, 3:7] * base_quat, axis=1)), 1.0, atol=1e-12)
     assert np.abs(est.qpos[:, 7:] - est.qpos[0, 7:]).max() > 0.01      # the angles did move
+
+
+def test_track_prints_the_top_three_classes(tmp_path, capsys, body, trained):
+    """`harness track` names the three most probable classes of the last frame, most probable first, with
+    their probabilities (2 decimals) as stored in the estimate file."""
+    import re
+
+    from harness.cli import main
+
+    m = synthetic_demos(body, "wave", 1, np.random.default_rng(3), seconds=0.6)[0]
+    obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))
+    obs_path, db_path, est_path = tmp_path / "obs.npz", tmp_path / "db.npz", tmp_path / "est.npz"
+    obs.save(obs_path)
+    trained.save(db_path)
+    capsys.readouterr()
+    assert main(["track", str(obs_path), "--database", str(db_path), "--particles", "30", "--out",
+                 str(est_path)]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    named = re.findall(r"(\w+) (\d\.\d\d)", line.split("recognised ", 1)[1])
+    assert len(named) == 3 and {c for c, _ in named} == set(CLASSES)
+    probs = [float(p) for _, p in named]
+    assert probs == sorted(probs, reverse=True)
+    assert sum(probs) <= 1.0 + 3 * 0.005          # each printed value is rounded to 2 decimals
+    with np.load(est_path) as z:
+        final = dict(zip(z["classes"], z["class_posterior"][-1]))
+    assert [f"{final[c]:.2f}" for c, _ in named] == [p for _, p in named]

@@ -155,6 +155,6 @@ def test_a_report_without_recognition_has_no_recognition_sections(rows, tmp_path
     alone = make_report(scenario, tmp_path / "alone", rows[rows["method"] == "no_database"], plots=False).read_text()
     whole = make_report(scenario, tmp_path / "whole", rows, plots=False).read_text()
     for section in ("## Recognition against time", "## Recognition per class", "## Confusion matrices",
-                    "## Paired tests"):
+                    "## Paired tests", "## Calibration of the final class posterior"):
         assert section not in alone and section in whole
     assert "## Headline" in alone and "no_database" in alone

@@ -49,7 +49,7 @@ from harness.scene.simulate import GroundTruth
 from harness.scene.spec import SceneSpec
 
 RECOGNITION_COLUMNS = ("class_pred", "correct", "frame_accuracy", "time_to_correct_s", "log_p_true",
-                       "accuracy_curve")
+                       "accuracy_curve", "confidence", "posterior_final")
 RECOVERY_COLUMNS = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", "pa_mpjpe_mm",
                     "pa_mpjpe17_mm", "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m", "base_rot_err_deg",
                     "heading_err_deg", "tilt_err_deg", "reproj_px")
@@ -174,9 +174,14 @@ def accuracy_curve(posteriors: np.ndarray, classes, label: str, points: int = CU
 
 
 def recognition_scores(post: np.ndarray, classes, label: str, fps: float) -> dict:
-    return (metrics.recognition(post, classes, label, fps)
-            | {"log_p_true": metrics.log_p_true(post, classes, label),
-               "accuracy_curve": accuracy_curve(post, classes, label)})
+    """Recognition columns of class posteriors ``(T, C)``; ``confidence`` and ``posterior_final`` (``{class:
+    probability}`` of the last frame, the posterior that decides ``class_pred``) are what
+    ``harness.evaluation.calibration`` scores."""
+    out = metrics.recognition(post, classes, label, fps)      # checks the shape and the label first
+    final = np.asarray(post, dtype=float)[-1]
+    return out | {"log_p_true": metrics.log_p_true(post, classes, label),
+                  "accuracy_curve": accuracy_curve(post, classes, label), "confidence": float(final.max()),
+                  "posterior_final": {str(c): float(p) for c, p in zip(classes, final)}}
 
 
 def segment_list(labels) -> list[list]:
@@ -229,8 +234,8 @@ def recovery_scores(inputs: RunInputs, qpos_est: np.ndarray) -> dict:
 
 
 def not_produced(columns: tuple[str, ...]) -> dict:
-    return {c: ("" if c == "class_pred" else [] if c in ("accuracy_curve", "segments_pred") else np.nan)
-            for c in columns}
+    return {c: ("" if c == "class_pred" else [] if c in ("accuracy_curve", "segments_pred")
+                else {} if c == "posterior_final" else np.nan) for c in columns}
 
 
 def reproduction_scores(inputs: RunInputs, est: Estimate) -> dict:

@@ -1,5 +1,5 @@
 """PNG plots of an evaluation (matplotlib, Agg back-end): metrics against each swept key, accuracy against the
-measured occlusion, and confusion matrices per method.
+measured occlusion, confusion matrices per method, and reliability diagrams of the final class posterior.
 
 A plot against a swept key pools the runs of every other swept key (the marginal effect of that key); points
 are means with 95% bootstrap intervals, one line per method.
@@ -197,6 +197,35 @@ def plot_accuracy_over_time(curve: pd.DataFrame, path: Path) -> bool:
     return True
 
 
+def plot_reliability(rel: pd.DataFrame, path: Path) -> bool:
+    """Reliability diagrams: per recognising method (one panel each), the accuracy of each equal-mass bin
+    against its mean confidence (marker area by runs), the run count written beside it, and the diagonal of a
+    calibrated posterior (``calibration.reliability_table``: all conditions pooled). Bins drawn at the same
+    spot (several bins of confidence 1.00) get one label, their summed count, so that labels do not overprint."""
+    if not len(rel):
+        return False
+    plt = _pyplot()
+    methods = list(dict.fromkeys(rel["method"]))
+    fig, axes = plt.subplots(1, len(methods), figsize=(3.3 * len(methods), 3.5), squeeze=False)
+    for ax, method in zip(axes[0], methods):
+        g = rel[rel["method"] == method]
+        ax.plot([0, 1], [0, 1], color="0.6", lw=1, ls="--")
+        ax.plot(g["confidence"], g["accuracy"], color=_colour(method), lw=1)
+        ax.scatter(g["confidence"], g["accuracy"], s=12 + 200 * g["runs"] / g["runs"].sum(), color=_colour(method),
+                   zorder=3)
+        spots = g.assign(x=g["confidence"].round(2), y=g["accuracy"].round(2)).groupby(["x", "y"], sort=False)
+        for (x, y), n in spots["runs"].sum().items():
+            ax.annotate(str(int(n)), (x, y), textcoords="offset points", xytext=(-12, 5), fontsize=7)
+        ax.set_xlim(-0.02, 1.04)
+        ax.set_ylim(-0.02, 1.04)
+        ax.set_xlabel("confidence (bin mean)")
+        ax.set_ylabel("accuracy")
+        ax.set_title(f"{method}: ECE {g['ece'].iloc[0]:.3f}, {int(g['runs'].sum())} runs", fontsize=9)
+        ax.grid(alpha=0.3)
+    _save(fig, path)
+    return True
+
+
 TRANSITION_COLOUR = (0.85, 0.85, 0.85)
 
 
@@ -253,6 +282,7 @@ def write_plots(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], class
                 ) -> list[str]:
     """Every plot the scenario calls for, under ``out_dir/plots``; returns their paths relative to ``out_dir``.
     ``fps``: the runs' frame rate (the time axis of stream timelines)."""
+    from harness.evaluation.calibration import reliability_table
     from harness.evaluation.tables import accuracy_over_time, confusion, per_class
 
     out_dir = Path(out_dir)
@@ -266,6 +296,8 @@ def write_plots(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], class
         made.append("plots/accuracy_over_time.png")
     if plot_class_heatmap(per_class(rows), classes, out_dir / "plots/class_accuracy.png"):
         made.append("plots/class_accuracy.png")
+    if plot_reliability(reliability_table(rows), out_dir / "plots/reliability.png"):
+        made.append("plots/reliability.png")
     for key in swept:
         name = f"plots/vs_{key.replace('.', '_')}.png"
         if plot_against(rows, key, out_dir / name):

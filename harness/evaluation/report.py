@@ -4,11 +4,13 @@ timing section, which is reported but is not part of any identity check)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import pandas as pd
 import yaml
 
+from harness.evaluation.calibration import CONFIDENT, ECE_BINS, NLL_FLOOR
 from harness.evaluation.plots import write_plots
 from harness.evaluation.runner import load_rows
 from harness.evaluation.scenario import Scenario, scenario_hash
@@ -35,9 +37,10 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
                 plots: bool = True) -> Path:
     """Write every table, plot and ``report.md`` of a scenario's results directory; return the report path.
 
-    The report opens with the headline table; then recognition against time, per class (heat map), the three
-    worst runs of ``full`` with the command that renders each, paired tests, confusion matrices of the methods
-    that recognise, plots against the swept keys, the scenario, and timing last."""
+    The report opens with the headline table; then recognition against time, per class (heat map), the
+    calibration of the final class posterior (table and reliability diagrams), the three worst runs of ``full``
+    with the command that renders each, paired tests, confusion matrices of the methods that recognise, plots
+    against the swept keys, the scenario, and timing last."""
     results_dir = Path(results_dir)
     digest = scenario_hash(scenario)
     rows = load_rows(results_dir, digest) if rows is None else rows
@@ -75,6 +78,20 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
             "## Recognition per class\n",
             *_section_plots(figures, ("class_accuracy",)),
             "(numbers in `per_class.csv`)\n",
+        ]
+    if len(tables["calibration"]):
+        parts += [
+            "## Calibration of the final class posterior\n",
+            f"Whether a probability means what it says. Confidence: the largest probability of the last frame's "
+            f"class posterior (the one that decides the answer). `ece`: expected calibration error over "
+            f"{ECE_BINS} equal-mass bins of the runs sorted by confidence (a tie is never split, so `bins` may be "
+            f"fewer); `brier`: multi-class Brier score over the whole posterior (0-2); `nll`: mean negative log "
+            f"probability of the true class in nats, a probability below {NLL_FLOOR:g} counted as {NLL_FLOOR:g} "
+            f"(at most {-math.log(NLL_FLOOR):.1f}); `confident_wrong`: share of the `wrong` answers given with "
+            f"confidence above {CONFIDENT:g}. Definitions in `docs/evaluation.md`.\n",
+            markdown(tables["calibration"]),
+            *_section_plots(figures, ("reliability",)),
+            "(bins in `reliability.csv`; all conditions pooled, the number of runs written at each bin)\n",
         ]
     worst = tables["worst_runs"]
     if len(worst):

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from harness.evaluation.cache import stable_hash
+from harness.evaluation.calibration import calibration_table, pooled_calibration, reliability_table
 from harness.evaluation.methods import METHODS, CURVE_POINTS, method_names, produces
 from harness.evaluation.stats import N_BOOT, bootstrap_ci, mcnemar_exact, wilcoxon_paired
 from harness.io import write_text_atomic
@@ -144,8 +145,9 @@ def paired_tests(rows: pd.DataFrame, reference: str = "full") -> pd.DataFrame:
 
 
 def pooled_metrics(rows: pd.DataFrame) -> dict[str, float]:
-    """``{"<method>/<metric>": mean over every run of every condition}``: what ``harness regress`` compares."""
-    out = {}
+    """``{"<method>/<metric>": mean over every run of every condition}``, and the calibration of the final
+    posterior over those runs (``harness.evaluation.calibration``): what ``harness regress`` compares."""
+    out = pooled_calibration(rows)
     for method, g in rows.groupby("method"):
         for metric in RECOGNITION + STREAM + RECOVERY + REPRODUCTION + TIMING:
             if metric in g:
@@ -243,8 +245,8 @@ def worst_runs(rows: pd.DataFrame, method: str = "full", n: int = 3) -> pd.DataF
 
 def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str],
                  n_boot: int = N_BOOT, seed: int = 0) -> dict[str, pd.DataFrame]:
-    """Write ``summary``, ``headline``, ``per_class``, ``confusion``, ``paired_tests``, ``accuracy_over_time``
-    and ``worst_runs`` as CSV and Markdown,
+    """Write ``summary``, ``headline``, ``per_class``, ``confusion``, ``paired_tests``, ``accuracy_over_time``,
+    ``worst_runs``, ``calibration`` and ``reliability`` as CSV and Markdown,
     and ``metrics.json`` (pooled metrics), under ``out_dir``. Returns the tables by name."""
     out_dir = Path(out_dir)
     summ = summary(rows, swept, n_boot, seed)
@@ -256,7 +258,8 @@ def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], clas
     tables = {"summary": summ, "headline": headline(summ, swept, head),
               "per_class": per_class(rows), "paired_tests": paired_tests(rows),
               "timing": headline(timing, swept, TIMING),
-              "accuracy_over_time": accuracy_over_time(rows), "worst_runs": worst_runs(rows)}
+              "accuracy_over_time": accuracy_over_time(rows), "worst_runs": worst_runs(rows),
+              "calibration": calibration_table(rows, swept), "reliability": reliability_table(rows)}
     conf = confusion(rows, classes)
     long = [{"condition": c, "method": m, "true": t, "predicted": p, "count": int(mat.loc[t, p])}
             for (c, m), mat in conf.items() for t in mat.index for p in mat.columns]
