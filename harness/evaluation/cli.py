@@ -38,7 +38,7 @@ def _evaluate_args(p: argparse.ArgumentParser) -> None:
 def _load(path: str, mocap_dir: str | None):
     from harness.evaluation.scenario import load_scenario, resolve_capture
 
-    return resolve_capture(load_scenario(path), mocap_dir)
+    return resolve_capture(load_scenario(path), mocap_dir, where=path)
 
 
 def _check_jobs(args) -> None:

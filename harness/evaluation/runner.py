@@ -132,9 +132,10 @@ def plan(scenario: Scenario, cache_dir: str | Path) -> list[RunSpec]:
     code = code_version()
     for cond in conditions(scenario):
         motions = motions_under_test(cond.config)
-        if len(runs) + scenario.repeats * len(motions) > MAX_RUNS:
+        repeats = cond.config.repeats       # swept repeats: each condition runs its own number
+        if len(runs) + repeats * len(motions) > MAX_RUNS:
             raise RunError(f"{scenario.name}: the plan has more than {MAX_RUNS} runs: reduce repeats or the sweep")
-        for rep in range(scenario.repeats):
+        for rep in range(repeats):
             for cls, demo in motions:
                 runs.append(RunSpec(cond.config, cond.index, cond.label, cond.values, rep, cls, demo,
                                     derive_seed(scenario.seed, rep, cls, demo), str(cache_dir), code))
