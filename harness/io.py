@@ -144,3 +144,45 @@ def check_output_dir(directory: str | Path, what: str = "--out", shown: str | Pa
         why = os.strerror(errno.EROFS) if readonly else "not writable"
         raise OutputPathError(f"{what} {shown}: cannot write in {probe} ({why})")
     return directory
+
+
+def inspect_npz(path: str | Path, error: type[Exception], kind: str, max_bytes: int) -> dict[str, tuple]:
+    """``{name: (shape, dtype)}`` of the arrays of an ``.npz`` archive, read from the ``.npy`` headers only:
+    refused (``error`` naming the file) when the file is not a regular file of at most ``max_bytes``, is not
+    an archive of arrays, expands to more than ``max_bytes``, holds pickled objects, or has a header whose
+    shape the member's bytes cannot hold (a header claiming 1e12 rows). ``np.load`` is safe to call after."""
+    import zipfile
+
+    check_input_file(path, error, kind, max_bytes)
+    out: dict[str, tuple] = {}
+    try:
+        with zipfile.ZipFile(path) as archive:
+            infos = archive.infolist()
+            expanded = sum(info.file_size for info in infos)
+            if expanded > max_bytes:
+                raise error(f"{path}: expands to {expanded} bytes, more than {max_bytes}")
+            for info in infos:
+                if not info.filename.endswith(".npy"):
+                    raise error(f"{path}: not a {kind} file (an archive member is not an array)")
+                with archive.open(info) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    if version == (1, 0):
+                        shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+                    elif version == (2, 0):
+                        shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+                    else:
+                        raise error(f"{path}: not a {kind} file (.npy format version {version})")
+                if dtype.hasobject:
+                    raise error(f"{path}: not a {kind} file (an array holds Python objects)")
+                nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                if nbytes > info.file_size:
+                    raise error(f"{path}: not a {kind} file (an array header claims {nbytes} bytes, its member "
+                                f"holds {info.file_size})")
+                out[info.filename[:-4]] = (tuple(shape), dtype)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError):
+        raise error(f"{path}: not a {kind} file (not an .npz archive or truncated)") from None
+    except (ValueError, OSError) as exc:
+        if isinstance(exc, HarnessError):
+            raise
+        raise error(f"{path}: not a {kind} file (malformed array header)") from None
+    return out
