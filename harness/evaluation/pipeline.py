@@ -28,6 +28,7 @@ from harness.evaluation.cache import cached, path_for_key
 from harness.evaluation.methods import METHODS, RunInputs, segment_list
 from harness.evaluation.runner import RunError, RunSpec
 from harness.evaluation.scenario import Scenario, scene_spec, tracker_config
+from harness.evaluation.viewing import viewing_columns
 from harness.motion import Motion
 from harness.motion.performer import demonstrations, training_set
 from harness.motion.stream import TRANSITION, Stream, capture_stream, procedural_stream
@@ -221,6 +222,8 @@ def run_one(run: RunSpec) -> list[dict]:
     common = {"class_true": run.test_class, "n_frames": len(obs), "mean_flows": float(obs.counts[1:].mean()),
               "self_occlusion": float(truth.self_fraction.mean()),
               "obstacle_occlusion": float(truth.obstacle_fraction.mean())}
+    # Where the camera stood: the spec simulate_run drew (first, from the run's "scene" stream).
+    common |= viewing_columns(scene_spec(run.config, named_stream(run.seed, "scene")), truth)
     if inputs.labels is not None:
         common["segments_true"] = segment_list(inputs.labels)
     rows = []
