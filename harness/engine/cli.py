@@ -83,6 +83,8 @@ def track(args: argparse.Namespace) -> int:
     if abs(db.fps_ - obs.fps) > 1e-6:
         raise EngineError(f"{args.observation}: observed at {obs.fps:g} fps but the database was learned at "
                           f"{db.fps_:g} fps")
+    if obs.counts.sum() == 0:       # before the engine is built: its error would name no file
+        raise EngineError(f"{args.observation}: no frame has any flow: nothing to estimate")
     est = Tracker(db, BodyModel.load(), config, np.random.default_rng(args.seed)).run(obs)
     top = np.argsort(est.class_posterior[-1])[::-1][:3]
     print(f"{args.observation}: {len(obs)} frames, {est.ms_per_frame.mean():.1f} ms/frame; recognised "

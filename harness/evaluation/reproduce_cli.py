@@ -79,6 +79,8 @@ def reproduce_command(args: argparse.Namespace) -> int:
     nominal = BodyModel.load()
     body = nominal if args.scale == 1.0 else nominal.scaled(np.where(np.arange(nominal.model.nbody) > 0,
                                                                       args.scale, 1.0))
+    if obs.counts.sum() == 0:
+        raise ReproduceError(f"{args.observation}: no frame has any flow: nothing to recognise")
     est = Tracker(db, nominal, config, np.random.default_rng(args.seed)).run(obs)
     label = est.predicted
     world = recovered_world(nominal, est.qpos, None if obs.gravity is None else obs.gravity[0])
