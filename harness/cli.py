@@ -46,7 +46,8 @@ class _Parser(argparse.ArgumentParser):
     status 2, like the package's own errors; ``--help`` is unchanged."""
 
     def error(self, message: str):
-        self.exit(2, f"error: {self.prog}: {' '.join(message.split())}\n")
+        text = " ".join(message.split())
+        self.exit(2, f"error: {self.prog}: {text if len(text) <= 300 else text[:297] + '...'}\n")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -67,6 +67,10 @@ def write_text_atomic(path: str | Path, text: str) -> None:
     write_atomic(path, lambda fh: fh.write(text.encode("utf-8")))
 
 
+def _a(kind: str) -> str:
+    return ("an " if kind[:1] in "aeiou" else "a ") + kind
+
+
 def check_input_file(path: str | Path, error: type[Exception], kind: str, max_bytes: int) -> int:
     """The size of the regular file at ``path`` (symlinks followed); ``error`` names the file when it is
     missing, a directory, a FIFO, a device or socket, or larger than ``max_bytes``. Nothing is opened."""
@@ -77,13 +81,13 @@ def check_input_file(path: str | Path, error: type[Exception], kind: str, max_by
     except OSError as exc:
         raise error(f"{path}: cannot be read ({_why(exc)})") from None
     if stat.S_ISDIR(st.st_mode):
-        raise error(f"{path}: is a directory, not a {kind} file")
+        raise error(f"{path}: is a directory, not {_a(kind)} file")
     if not stat.S_ISREG(st.st_mode):
         what = ("a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode)
                 or stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
-        raise error(f"{path}: is {what}, not a {kind} file")
+        raise error(f"{path}: is {what}, not {_a(kind)} file")
     if st.st_size > max_bytes:
-        raise error(f"{path}: {st.st_size} bytes is too large for a {kind} file (at most {max_bytes})")
+        raise error(f"{path}: {st.st_size} bytes is too large for {_a(kind)} file (at most {max_bytes})")
     return st.st_size
 
 
@@ -97,7 +101,7 @@ def read_input_bytes(path: str | Path, error: type[Exception], kind: str, max_by
     except OSError as exc:
         raise error(f"{path}: cannot be read ({_why(exc)})") from None
     if len(data) > max_bytes:
-        raise error(f"{path}: too large for a {kind} file (at most {max_bytes} bytes)")
+        raise error(f"{path}: too large for {_a(kind)} file (at most {max_bytes} bytes)")
     return data
 
 
@@ -163,7 +167,7 @@ def inspect_npz(path: str | Path, error: type[Exception], kind: str, max_bytes: 
                 raise error(f"{path}: expands to {expanded} bytes, more than {max_bytes}")
             for info in infos:
                 if not info.filename.endswith(".npy"):
-                    raise error(f"{path}: not a {kind} file (an archive member is not an array)")
+                    raise error(f"{path}: not {_a(kind)} file (an archive member is not an array)")
                 with archive.open(info) as fh:
                     version = np.lib.format.read_magic(fh)
                     if version == (1, 0):
@@ -171,18 +175,18 @@ def inspect_npz(path: str | Path, error: type[Exception], kind: str, max_bytes: 
                     elif version == (2, 0):
                         shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
                     else:
-                        raise error(f"{path}: not a {kind} file (.npy format version {version})")
+                        raise error(f"{path}: not {_a(kind)} file (.npy format version {version})")
                 if dtype.hasobject:
-                    raise error(f"{path}: not a {kind} file (an array holds Python objects)")
+                    raise error(f"{path}: not {_a(kind)} file (an array holds Python objects)")
                 nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
                 if nbytes > info.file_size:
-                    raise error(f"{path}: not a {kind} file (an array header claims {nbytes} bytes, its member "
+                    raise error(f"{path}: not {_a(kind)} file (an array header claims {nbytes} bytes, its member "
                                 f"holds {info.file_size})")
                 out[info.filename[:-4]] = (tuple(shape), dtype)
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError):
-        raise error(f"{path}: not a {kind} file (not an .npz archive or truncated)") from None
+        raise error(f"{path}: not {_a(kind)} file (not an .npz archive or truncated)") from None
     except (ValueError, OSError) as exc:
         if isinstance(exc, HarnessError):
             raise
-        raise error(f"{path}: not a {kind} file (malformed array header)") from None
+        raise error(f"{path}: not {_a(kind)} file (malformed array header)") from None
     return out

@@ -160,9 +160,9 @@ def _check_bounds(cfg: TrackerConfig) -> None:
                           f"{cfg.particles * cfg.init_factor}")
     work = cfg.particles * cfg.init_factor * cfg.model_points
     if work > MAX_HYPOTHESIS_POINTS:
-        raise EngineError(f"engine setting particles x init_factor x model_points = {cfg.particles} x "
-                          f"{cfg.init_factor} x {cfg.model_points} = {work:.3g} hypothesis-points on the first "
-                          f"frame, more than {MAX_HYPOTHESIS_POINTS:.0e} (about 190 bytes each)")
+        raise EngineError(f"engine setting particles ({cfg.particles}) x init_factor ({cfg.init_factor}) x "
+                          f"model_points ({cfg.model_points}) = {work:.3g} hypothesis-points on the first frame, "
+                          f"more than {MAX_HYPOTHESIS_POINTS:.0e} (about 190 bytes each)")
 
 
 def settings_from_strings(items: list[str]) -> dict:
