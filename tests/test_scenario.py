@@ -195,3 +195,37 @@ def test_with_captures_trains_on_the_other_subjects_captures(tmp_path, monkeypat
     motions = pipeline.training_motions(s, test)
     assert [(m.source == "procedural", m.label, m.subject) for m in motions] == [
         (True, "walk", "0"), (True, "run", "0"), (False, "walk", "2"), (False, "walk", "2")]
+
+
+def test_every_swept_condition_is_validated_as_written_not_the_base():
+    """The unswept value of a swept key is never run, so a rule between fields holds per condition: amount 0.4
+    beside a swept preset is valid, and the condition that breaks a rule is named."""
+    s = parse_scenario({"name": "p", "occluders": {"amount": 0.4}, "sweep": {"occluders.preset": ["pillar", "boxes"]}})
+    assert [(c.config.occluders.preset, c.config.occluders.amount) for c in conditions(s)] == [
+        ("pillar", 0.4), ("boxes", 0.4)]
+    with pytest.raises(ScenarioError, match=r"s.yaml: occluders.amount: preset 'none' hides nothing.*"
+                                            r"\(condition occluders.preset=none\)"):
+        parse_scenario({"name": "p", "occluders": {"amount": 0.4},
+                        "sweep": {"occluders.preset": ["pillar", "none"]}}, "s.yaml")
+    with pytest.raises(ScenarioError, match=r"camera.distance: .*inside the standing subject.*"
+                                            r"\(condition camera.distance=0.05\)"):
+        parse_scenario({"name": "c", "camera": {"elevation": 0}, "sweep": {"camera.distance": [4, 0.05]}}, "c.yaml")
+    with pytest.raises(ScenarioError, match=r"sweep\['markers.count'\]\[1\]: at most 10000 markers"):
+        parse_scenario({"name": "m", "sweep": {"markers.count": [10, 20000]}}, "m.yaml")
+
+
+def test_yaml_anchors_and_merge_keys_still_work(tmp_path):
+    path = tmp_path / "a.yaml"
+    path.write_text("name: a\nseed: &s 4\ndatabase: {seed: *s}\n"
+                    "engine: {<<: {particles: 50, model_points: 60}, particles: 80}\n")
+    s = load_scenario(path)
+    assert (s.seed, s.database.seed, s.engine.particles, s.engine.model_points) == (4, 4, 80, 60)
+
+
+def test_capture_classes_are_checked_in_every_condition(tmp_path):
+    mocap = require_mocap()
+    s = parse_scenario({"name": "m", "database": {"source": "capture"}, "test": {"split": "all"},
+                        "sweep": {"database.classes": [["walk"], ["walk", "wlak"]]}})
+    with pytest.raises(ScenarioError, match=r"s.yaml: database.classes\[1\]: unknown class 'wlak' .*"
+                                            r"\(condition database.classes="):
+        resolve_capture(s, mocap, where="s.yaml")
