@@ -143,8 +143,8 @@ class Observation:
             bad = ~np.isfinite(h) | (h < 0) | (h > MAX_CAMERA_HEIGHT)
             if bad.any():
                 t = int(np.argmax(bad))
-                raise ObservationError(f"camera_height, frame {t}: must be a height in [0, {MAX_CAMERA_HEIGHT:g}] "
-                                       f"m, got {h[t]}")
+                raise ObservationError(f"camera_height, frame {t}: must be a finite height in "
+                                       f"[0, {MAX_CAMERA_HEIGHT:g}] m, got {h[t]}")
             if self.gravity is None:
                 raise ObservationError("camera_height needs gravity: a height above the floor means nothing "
                                        "without knowing which way is down")

@@ -372,7 +372,8 @@ SIZE_CASES = {
     "stream_transition_100s": _scenario("name: x\ntest: {stream: {transition_s: [0.3, 100]}}\n"),
     "run_frames": _scenario("name: x\ndatabase: {fps: 1000}\ntest: {stream: {primitives: [20, 20]}}\n"),
     "run_memory": _scenario("name: x\nengine: {particles: 8000, model_points: 300}\n"),
-    "run_memory_swept": _scenario("name: x\nsweep: {engine.model_points: [100, 2000], engine.particles: [100, 1000]}\n"),
+    "run_memory_swept": _scenario("name: x\nsweep: {engine.model_points: [100, 2000], "
+                                  "engine.particles: [100, 1000]}\n"),
     "sweep_20000_values": _scenario("name: x\nsweep: {markers.count: " + _sweep_values(20000) + "}\n"),
 }
 

@@ -152,8 +152,8 @@ def _view_section(figures: list[str]) -> list[str]:
     if "plots/by_view.png" not in figures:
         return []
     return ["## Against the viewpoint\n",
-            "Runs pooled over conditions by the camera's azimuth from the subject's initial heading (`view_azimuth_deg` "
-            "in `runs.csv`): front within 45 deg of the face, back within 45 deg of the back, side between. The "
+            "Runs pooled over conditions by the camera's azimuth from the subject's initial heading "
+            "(`view_azimuth_deg` in `runs.csv`): front within 45 deg of the face, back within 45 deg of the back, side between. The "
             "heading error up to the twin (dashed, `heading_err_twin_deg`) forgives the depth-reflected mirrored "
             "pose that no flow can tell apart: the gap between the two lines is the information limit, what "
             "remains is the tracker's own error (numbers in `by_view.csv`).\n",
