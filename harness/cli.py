@@ -41,8 +41,17 @@ def _model_info(args: argparse.Namespace) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser with its errors as one line (``error: harness track: argument --seed: ...``) and exit
+    status 2, like the package's own errors; ``--help`` is unchanged."""
+
+    def error(self, message: str):
+        text = " ".join(message.split())
+        self.exit(2, f"error: {self.prog}: {text if len(text) <= 300 else text[:297] + '...'}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="harness", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="harness", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     for name, (add_arguments, run) in sorted(COMMANDS.items()):
         p = sub.add_parser(name, help=(run.__doc__ or "").strip().splitlines()[0] if run.__doc__ else None)
@@ -52,7 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:              # --help (0) or a malformed command line (2, one line printed)
+        return int(exc.code or 0)
     try:
         return int(args._run(args) or 0)
     except HarnessError as exc:

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.errors import EngineError, HarnessError
-from harness.io import save_npz_atomic
+from harness.io import inspect_npz, save_npz_atomic
 from harness.pinhole import Intrinsics
 
 
@@ -45,7 +45,16 @@ def _why(exc: Exception) -> str:
     return f"malformed arrays: {type(exc).__name__}"
 
 
-MAX_FRAMES = 10_000_000     # a larger frame count is a corrupt file, not a recording
+MAX_FRAMES = 1_000_000      # a larger frame count is a corrupt file, not a recording (9 hours at 30 fps)
+MAX_FILE_BYTES = 512 * 2**20   # an observation file, and what its arrays expand to
+MAX_FPS = 10_000.0
+MAX_FLOW_SPEED = 1e7        # px/s: an image side (8192 px) per frame at 1000 fps is 8e6
+MAX_CAMERA_SPEED = 1e4      # m/s and rad/s of camera_motion
+MAX_CAMERA_HEIGHT = 1e4     # m
+# The arrays a file must or may hold, and the kinds of number each may be (numpy dtype kinds: signed and
+# unsigned integers, floats). Bool, complex, strings and objects are refused before anything is cast.
+_KINDS = {"flows": "iuf", "frame": "iuf", "n_frames": "iuf", "fps": "iuf", "intrinsics": "iuf",
+          "camera_motion": "iuf", "gravity": "iuf", "camera_height": "iuf"}
 
 
 class ObservationError(EngineError):
@@ -85,8 +94,8 @@ class Observation:
 
     def validate(self) -> "Observation":
         """Raise ``ObservationError`` naming the frame, row and problem; return self when usable."""
-        if not (np.isfinite(self.fps) and self.fps > 0):
-            raise ObservationError(f"fps must be a positive number, got {self.fps}")
+        if not (np.isfinite(self.fps) and 0 < self.fps <= MAX_FPS):
+            raise ObservationError(f"fps must be a positive number up to {MAX_FPS:g}, got {self.fps}")
         w, h = self.intrinsics.width, self.intrinsics.height
         for t, f in enumerate(self.flows):
             if len(f) == 0:
@@ -99,12 +108,18 @@ class Observation:
                 r = int(np.argmax(outside))
                 raise ObservationError(f"frame {t}, row {r}: position ({f[r, 0]:.1f}, {f[r, 1]:.1f}) px is "
                                        f"outside the {w}x{h} image")
+            fast = np.abs(f[:, 2:]).max(axis=1) > MAX_FLOW_SPEED
+            if fast.any():
+                raise ObservationError(f"frame {t}, row {int(np.argmax(fast))}: image velocity beyond "
+                                       f"{MAX_FLOW_SPEED:g} px/s")
         if self.camera_motion is not None:
             if self.camera_motion.shape != (len(self.flows), 6):
                 raise ObservationError(f"camera_motion must have shape ({len(self.flows)}, 6), "
                                        f"got {self.camera_motion.shape}")
             if not np.isfinite(self.camera_motion).all():
                 raise ObservationError("camera_motion has NaN or infinite values")
+            if np.abs(self.camera_motion).max(initial=0.0) > MAX_CAMERA_SPEED:
+                raise ObservationError(f"camera_motion beyond {MAX_CAMERA_SPEED:g} m/s or rad/s")
         self._validate_prior()
         return self
 
@@ -125,10 +140,11 @@ class Observation:
             h = self.camera_height
             if h.shape != (T,):
                 raise ObservationError(f"camera_height must have shape ({T},), got {h.shape}")
-            bad = ~np.isfinite(h) | (h < 0)
+            bad = ~np.isfinite(h) | (h < 0) | (h > MAX_CAMERA_HEIGHT)
             if bad.any():
                 t = int(np.argmax(bad))
-                raise ObservationError(f"camera_height, frame {t}: must be a finite height >= 0 m, got {h[t]}")
+                raise ObservationError(f"camera_height, frame {t}: must be a finite height in "
+                                       f"[0, {MAX_CAMERA_HEIGHT:g}] m, got {h[t]}")
             if self.gravity is None:
                 raise ObservationError("camera_height needs gravity: a height above the floor means nothing "
                                        "without knowing which way is down")
@@ -149,11 +165,24 @@ class Observation:
 
     @classmethod
     def load(cls, path: str | Path) -> "Observation":
+        """Read the documented ``.npz`` format. The file's kind and size, and every array's header (shape,
+        kind of number, that its bytes can hold it), are checked before any array is read; frame indices and
+        ``n_frames`` must be whole numbers."""
         path = Path(path)
+        arrays = inspect_npz(path, ObservationError, "observation", MAX_FILE_BYTES)
+        for name in ("flows", "frame", "n_frames", "fps", "intrinsics"):
+            if name not in arrays:
+                raise ObservationError(f"{path}: not an observation file (no array {name!r})")
+        for name, (shape, dtype) in arrays.items():
+            if name in _KINDS and dtype.kind not in _KINDS[name]:
+                raise ObservationError(f"{path}: {name!r} must hold real numbers, got dtype {dtype}")
+        for name in ("n_frames", "fps"):
+            if arrays[name][0] not in ((), (1,)):
+                raise ObservationError(f"{path}: {name!r} must be one number, got shape {arrays[name][0]}")
         try:
             with np.load(path, allow_pickle=False) as z:
-                flows, frame = np.asarray(z["flows"], float), np.asarray(z["frame"], int)
-                n_frames, fps = int(z["n_frames"]), float(z["fps"])
+                flows, frame_raw = np.asarray(z["flows"], float), np.asarray(z["frame"])
+                n_raw, fps = float(np.asarray(z["n_frames"]).ravel()[0]), float(np.asarray(z["fps"]).ravel()[0])
                 intr = Intrinsics.from_array(z["intrinsics"])
                 optional = {name: np.asarray(z[name], float) if name in z.files else None
                             for name in ("camera_motion", "gravity", "camera_height")}
@@ -166,8 +195,14 @@ class Observation:
             raise ObservationError(f"{path}: not an observation file ({_why(exc)})") from None
         except HarnessError as exc:        # intrinsics that describe no camera
             raise ObservationError(f"{path}: {exc}") from None
-        if n_frames < 0 or n_frames > MAX_FRAMES:
-            raise ObservationError(f"{path}: 'n_frames' must be in [0, {MAX_FRAMES}], got {n_frames}")
+        if not (np.isfinite(n_raw) and n_raw == round(n_raw) and 0 <= n_raw <= MAX_FRAMES):
+            raise ObservationError(f"{path}: 'n_frames' must be a whole number in [0, {MAX_FRAMES}], got {n_raw:g}")
+        n_frames = int(n_raw)
+        if frame_raw.ndim != 1 or not np.all(np.isfinite(frame_raw)) or np.any(frame_raw != np.round(frame_raw)):
+            raise ObservationError(f"{path}: 'frame' must hold one whole frame index per row")
+        if len(frame_raw) and np.abs(frame_raw).max() > MAX_FRAMES:
+            raise ObservationError(f"{path}: 'frame' indices must be non-decreasing and in [0, n_frames)")
+        frame = frame_raw.astype(np.int64)
         if flows.ndim != 2 or flows.shape[1] != 4 or frame.ndim != 1 or len(frame) != len(flows):
             raise ObservationError(f"{path}: 'flows' must be (N, 4) with one 'frame' index per row")
         if len(frame) and (frame.min() < 0 or frame.max() >= n_frames or np.any(np.diff(frame) < 0)):

@@ -15,6 +15,11 @@ import numpy as np
 from harness.errors import HarnessError
 
 MUJOCO_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
+MAX_IMAGE_SIDE = 8192          # px: an image side beyond this is a typo or a corrupt file (a rendered frame of
+                               # 8192 x 8192 is already 200 MB), not a camera
+FOCAL_RANGE_PX = (0.1, 1e7)    # focal lengths outside this make projections degenerate (a 170 deg field of view
+                               # on a 16 px image is 0.7 px)
+MAX_PRINCIPAL_PX = 1e7
 
 
 class CameraError(HarnessError):
@@ -35,8 +40,16 @@ class Intrinsics:
     def __post_init__(self):
         if self.width <= 0 or self.height <= 0:
             raise CameraError(f"image size must be positive, got {self.width}x{self.height}")
+        if self.width > MAX_IMAGE_SIDE or self.height > MAX_IMAGE_SIDE:
+            raise CameraError(f"image size {self.width}x{self.height} is larger than {MAX_IMAGE_SIDE} px a side")
         if not (self.fx > 0 and self.fy > 0):
             raise CameraError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        lo, hi = FOCAL_RANGE_PX
+        if not (lo <= self.fx <= hi and lo <= self.fy <= hi):
+            raise CameraError(f"focal lengths must be in [{lo:g}, {hi:g}] px, got fx={self.fx}, fy={self.fy}")
+        if not (abs(self.cx) <= MAX_PRINCIPAL_PX and abs(self.cy) <= MAX_PRINCIPAL_PX):
+            raise CameraError(f"principal point must be finite, within {MAX_PRINCIPAL_PX:g} px, got "
+                              f"({self.cx}, {self.cy})")
 
     @classmethod
     def from_fov(cls, fovy_deg: float, width: int, height: int) -> "Intrinsics":
@@ -57,9 +70,17 @@ class Intrinsics:
 
     @classmethod
     def from_array(cls, a) -> "Intrinsics":
-        a = np.asarray(a, dtype=float).ravel()
+        a = np.asarray(a)
+        if a.dtype.kind not in "iuf":
+            raise CameraError(f"intrinsics must be real numbers, got dtype {a.dtype}")
+        a = a.astype(float).ravel()
         if a.shape != (6,):
             raise CameraError(f"intrinsics need 6 numbers [width, height, fx, fy, cx, cy], got {a.shape[0]}")
+        if not np.isfinite(a).all():
+            raise CameraError("intrinsics must be finite numbers [width, height, fx, fy, cx, cy]")
+        if not (1 <= a[0] <= MAX_IMAGE_SIDE and 1 <= a[1] <= MAX_IMAGE_SIDE) or a[0] != round(a[0]) \
+                or a[1] != round(a[1]):
+            raise CameraError(f"image size must be whole pixels in [1, {MAX_IMAGE_SIDE}], got {a[0]:g}x{a[1]:g}")
         return cls(int(round(a[0])), int(round(a[1])), float(a[2]), float(a[3]), float(a[4]), float(a[5]))
 
     def matrix(self) -> np.ndarray:

@@ -58,3 +58,9 @@ def failing_run(run):
         from harness.errors import HarnessError
         raise HarnessError("kick exploded")
     return fake_run(run)
+
+
+def slower_fake_run(run):
+    """A run slow enough that a process can be killed while runs are in flight (24 runs take 4 s on 2 workers)."""
+    time.sleep(0.3)
+    return fake_run(run)

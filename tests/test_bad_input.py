@@ -285,10 +285,529 @@ def test_bad_manifest(case, tmp_path, capsys):
     assert "root:x" not in err
 
 
+# --- issue 23: every group of bad input, refused at load ---------------------------------------------------
+#
+# Each case is a builder ``(tmp_path, ctx) -> (argv, named)``: it writes its inputs under tmp_path and returns
+# the command line and the file (or argument) the one-line error must name. ``_check`` then requires exit 2,
+# one line, no traceback, and the tree under tmp_path unchanged, names and contents.
+
+TINY_YAML = ("name: tiny\nseed: 5\ndatabase: {classes: [walk, run]}\ntest: {demos_per_class: 1}\n"
+             "methods: [full, gt_base]\n")
+
+
+def _scenario(text: str, name: str = "case.yaml"):
+    def build(tmp_path, ctx):
+        path = tmp_path / name
+        path.write_text(text)
+        return ["evaluate", str(path), "--results", str(tmp_path / "results")], path
+    return build
+
+
+def _sweep_values(n: int) -> str:
+    return "[" + ", ".join(str(i) for i in range(1, n + 1)) + "]"
+
+
+_BOMB = ("a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]\nb: &b [*a, *a, *a, *a, *a, *a, *a, *a, *a, *a]\n"
+         "c: &c [*b, *b, *b, *b, *b, *b, *b, *b, *b, *b]\nd: &d [*c, *c, *c, *c, *c, *c, *c, *c, *c, *c]\n"
+         "e: &e [*d, *d, *d, *d, *d, *d, *d, *d, *d, *d]\n")
+
+PATH_CASES = {
+    "name_dotdot": _scenario("name: ..\n"),
+    "name_dot": _scenario("name: .\n"),
+    "name_slash": _scenario("name: a/b\n"),
+    "name_hidden": _scenario("name: .hidden\n"),
+    "name_dash": _scenario("name: -rf\n"),
+    "name_cache": _scenario("name: cache\n"),
+    "name_baseline": _scenario("name: baseline\n"),
+    "manifest_absolute": _scenario("name: x\ndatabase: {source: capture, manifest: /etc/passwd}\ntest: {split: all}\n"),
+    "manifest_parent": _scenario("name: x\ndatabase: {source: capture, manifest: ../outside/M.csv}\n"
+                                 "test: {split: all}\n"),
+}
+
+SWEEP_CASES = {
+    "sweep_seed": _scenario("name: x\nsweep: {seed: [1, 2]}\n"),
+    "sweep_capture_dir": _scenario("name: x\nsweep: {database.capture_dir: [a, b]}\n"),
+    "sweep_manifest": _scenario("name: x\nsweep: {database.manifest: [a.csv, b.csv]}\n"),
+    "sweep_cross_field": _scenario("name: x\noccluders: {amount: 0.4}\nsweep: {occluders.preset: [pillar, none]}\n"),
+    "sweep_cross_field_two_keys": _scenario("name: x\nsweep: {occluders.preset: [none, low_wall], "
+                                            "occluders.amount: [0.0, 0.3]}\n"),
+    "sweep_split_per_condition": _scenario("name: x\nsweep: {test.split: [heldout, all]}\n"),
+    "sweep_1001_values": _scenario("name: x\nsweep: {markers.count: " + _sweep_values(1001) + "}\n"),
+    "sweep_too_many_conditions": _scenario("name: x\nsweep: {markers.count: " + _sweep_values(40)
+                                           + ", camera.distance: " + _sweep_values(40) + "}\n"),
+    "sweep_key_not_text": _scenario("name: x\nsweep: {1: [2, 3]}\n"),
+    "sweep_date_value": _scenario("name: x\nsweep: {markers.count: [2020-01-01, 3]}\n"),
+    "sweep_not_a_section": _scenario("name: x\ncamera: 5\nsweep: {camera.distance: [3, 4]}\n"),
+    "sweep_repeats_plan": _scenario("name: x\nsweep: {repeats: [1, 6000]}\n"),
+}
+
+ENGINE_CASES = {
+    "particles_1e12": _scenario("name: x\nengine: {particles: 1.0e+12}\n"),
+    "model_points_1e9": _scenario("name: x\nengine: {model_points: 1000000000}\n"),
+    "hypothesis_points": _scenario("name: x\nengine: {particles: 50000}\n"),
+    "open_cell_zero": _scenario("name: x\nengine: {open_cell_px: 0}\n"),
+    "weigh_classes_zero": _scenario("name: x\nengine: {weigh_classes: 0}\n"),
+    "init_keep_zero": _scenario("name: x\nengine: {init_keep: 0}\n"),
+    "init_keep_five": _scenario("name: x\nengine: {init_keep: 5}\n"),
+    "model_seed_negative": _scenario("name: x\nengine: {model_seed: -1}\n"),
+    "position_noise_negative": _scenario("name: x\nengine: {position_noise: -1}\n"),
+    "weight_iterations_negative": _scenario("name: x\nengine: {weight_iterations: -1}\n"),
+    "refine_iterations_negative": _scenario("name: x\nengine: {refine_iterations: -2}\n"),
+    "recover_tracks_negative": _scenario("name: x\nengine: {recover_tracks: -1}\n"),
+    "smoothing_frames_negative": _scenario("name: x\nengine: {smoothing_frames: -3}\n"),
+    "weigh_class_mass_two": _scenario("name: x\nengine: {weigh_class_mass: 2}\n"),
+    "floor_std_zero": _scenario("name: x\nengine: {floor_std: 0}\n"),
+    "track_turns_many": _scenario("name: x\nengine: {track_turns: " + _sweep_values(17) + "}\n"),
+    "em_iterations_huge": _scenario("name: x\nengine: {em_iterations: 100000}\n"),
+}
+
+SIZE_CASES = {
+    "markers_1e9": _scenario("name: x\nmarkers: {count: 1000000000}\n"),
+    "camera_1e8_px": _scenario("name: x\ncamera: {width: 100000000, height: 100000000}\n"),
+    "fovy_175": _scenario("name: x\ncamera: {fovy: 175}\n"),
+    "distance_1e6": _scenario("name: x\ncamera: {distance: 1000000}\n"),
+    "look_at_1e6": _scenario("name: x\ncamera: {look_at_height: 1000000}\n"),
+    "stream_primitives_1e8": _scenario("name: x\ntest: {stream: {primitives: [2, 100000000]}}\n"
+                                       "engine: {primitive_switch: 0.01}\n"),
+    "stream_transition_100s": _scenario("name: x\ntest: {stream: {transition_s: [0.3, 100]}}\n"),
+    "run_frames": _scenario("name: x\ndatabase: {fps: 1000}\ntest: {stream: {primitives: [20, 20]}}\n"),
+    "run_memory": _scenario("name: x\nengine: {particles: 8000, model_points: 300}\n"),
+    "run_memory_swept": _scenario("name: x\nsweep: {engine.model_points: [100, 2000], "
+                                  "engine.particles: [100, 1000]}\n"),
+    "sweep_20000_values": _scenario("name: x\nsweep: {markers.count: " + _sweep_values(20000) + "}\n"),
+}
+
+YAML_CASES = {
+    "alias_bomb": _scenario("name: x\n" + _BOMB + "f: [*e, *e, *e, *e, *e, *e, *e, *e, *e, *e]\n"),
+    "alias_bomb_in_sweep": _scenario("name: x\nsweep:\n  markers.count: [[&a [1, 1, 1, 1, 1, 1, 1, 1, 1, 1], "
+                                     "&b [*a, *a, *a, *a, *a, *a, *a, *a, *a, *a], "
+                                     "&c [*b, *b, *b, *b, *b, *b, *b, *b, *b, *b], "
+                                     "&d [*c, *c, *c, *c, *c, *c, *c, *c, *c, *c], "
+                                     "[*d, *d, *d, *d, *d, *d, *d, *d, *d, *d]]]\n"),
+    "recursive_alias": _scenario("name: x\nsweep: {markers.count: &r [*r]}\n"),
+    "integer_5000_digits": _scenario("name: x\nseed: " + "9" * 5000 + "\n"),
+    "integer_beyond_63_bits": _scenario("name: x\nseed: 99999999999999999999\n"),
+    "hex_integer_huge": _scenario("name: x\nseed: 0x" + "f" * 40 + "\n"),
+    "duplicate_key": _scenario("name: x\nseed: 1\nseed: 2\n"),
+    "duplicate_nested_key": _scenario("name: x\ncamera:\n  distance: 3\n  distance: 5\n"),
+    "nested_40_deep": _scenario("name: x\nsweep: {markers.count: " + "[" * 40 + "]" * 40 + "}\n"),
+    "python_tag": _scenario("name: !!python/object/apply:os.getcwd []\n"),
+}
+
+OBSTACLE_CASES = {
+    "box_around_subject": _scenario("name: x\noccluders:\n  geoms: [{type: box, pos: [0, 0, 1], size: [1, 1, 1]}]\n"),
+    "cylinder_through_subject": _scenario("name: x\noccluders:\n  geoms: [{type: cylinder, pos: [0, 0, 1], "
+                                          "size: [0.3, 1]}]\n"),
+    "size_1e299": _scenario("name: x\noccluders:\n  geoms: [{type: box, pos: [3, 0, 1], size: [1.0e+299, 1, 1]}]\n"),
+    "pos_1e299": _scenario("name: x\noccluders:\n  geoms: [{type: box, pos: [1.0e+299, 0, 1], size: [1, 1, 1]}]\n"),
+}
+
+
+def _special_file(kind: str):
+    def build(tmp_path, ctx):
+        path = tmp_path / f"{kind}.yaml"
+        if kind == "fifo":
+            os.mkfifo(path)
+        elif kind == "dev_zero":
+            path.symlink_to("/dev/zero")
+        elif kind == "sparse_3gb":
+            with open(path, "wb") as fh:
+                fh.truncate(3 * 2**30)
+        return ["evaluate", str(path), "--results", str(tmp_path / "results")], path
+    return build
+
+
+FILE_CASES = {"scenario_fifo": _special_file("fifo"), "scenario_dev_zero": _special_file("dev_zero"),
+              "scenario_sparse_3gb": _special_file("sparse_3gb")}
+
+
+# Observation files (`harness track`): arrays that are not real numbers, fractional frames, values beyond any
+# camera, headers that lie, archives that expand.
+
+def _good_arrays() -> dict:
+    return _arrays(_observation())
+
+
+def _forged_size(path: Path, arrays: dict, size: int) -> None:
+    """An archive whose central directory claims ``size`` uncompressed bytes for its first member."""
+    import struct
+
+    _npz(path, arrays)
+    data = bytearray(path.read_bytes())
+    at = data.index(b"PK\x01\x02")
+    data[at + 24:at + 28] = struct.pack("<I", size)
+    path.write_bytes(bytes(data))
+
+
+def _lying_header(path: Path, arrays: dict) -> None:
+    """A ``flows`` member whose .npy header claims 1e12 rows."""
+    import io
+
+    with zipfile.ZipFile(path, "w") as z:
+        for name, a in arrays.items():
+            buf = io.BytesIO()
+            np.save(buf, a)
+            raw = buf.getvalue()
+            if name == "flows":
+                raw = raw.replace(f"({a.shape[0]}, 4)".encode(), b"(1000000000000, 4)")
+            z.writestr(name + ".npy", raw)
+
+
+def _obs(kind: str):
+    def build(tmp_path, ctx):
+        path = tmp_path / f"{kind}.npz"
+        good = _good_arrays()
+        flows = good["flows"]
+        if kind == "complex_flows":
+            _npz(path, good | {"flows": flows.astype(complex)})
+        elif kind == "string_flows":
+            _npz(path, good | {"flows": flows.astype(str)})
+        elif kind == "bool_flows":
+            _npz(path, good | {"flows": flows > 100})
+        elif kind == "fractional_frame":
+            _npz(path, good | {"frame": good["frame"] + 0.5})
+        elif kind == "n_frames_62_5":
+            _npz(path, good | {"n_frames": np.array(62.5)})
+        elif kind == "n_frames_array":
+            _npz(path, good | {"n_frames": np.array([5, 5])})
+        elif kind == "frame_huge":
+            f = good["frame"].astype(float)
+            f[-1] = 1e300
+            _npz(path, good | {"frame": f})
+        elif kind == "nan_principal_point":
+            _npz(path, good | {"intrinsics": good["intrinsics"] * np.array([1, 1, 1, 1, np.nan, 1])})
+        elif kind == "infinite_focal":
+            _npz(path, good | {"intrinsics": good["intrinsics"] * np.array([1, 1, np.inf, 1, 1, 1])})
+        elif kind == "focal_1e-300":
+            _npz(path, good | {"intrinsics": good["intrinsics"] * np.array([1, 1, 1e-300, 1e-300, 1, 1])})
+        elif kind == "image_1e12_px":
+            _npz(path, good | {"intrinsics": good["intrinsics"] * np.array([1e12, 1e12, 1, 1, 1, 1])})
+        elif kind == "velocity_1e300":
+            f = flows.copy()
+            f[2, 3] = 1e300
+            _npz(path, good | {"flows": f})
+        elif kind == "camera_height_1e300":
+            n = int(good["n_frames"])
+            _npz(path, good | {"gravity": np.tile([0.0, 1.0, 0.0], (n, 1)), "camera_height": np.full(n, 1e300)})
+        elif kind == "camera_motion_1e300":
+            _npz(path, good | {"camera_motion": np.full((int(good["n_frames"]), 6), 1e300)})
+        elif kind == "fps_1e300":
+            _npz(path, good | {"fps": np.array(1e300)})
+        elif kind == "header_claims_1e12_rows":
+            _lying_header(path, good)
+        elif kind == "archive_expands_3gb":
+            _forged_size(path, good, 3 * 2**30)
+        elif kind == "no_flow_at_all":
+            Observation(30.0, Intrinsics.from_fov(45.0, 640, 480), [np.empty((0, 4))] * 5).save(path)
+        elif kind == "fifo":
+            os.mkfifo(path)
+        elif kind == "dev_zero":
+            path.symlink_to("/dev/zero")
+        elif kind == "sparse_1gb":
+            with open(path, "wb") as fh:
+                fh.truncate(2**30)
+        else:
+            raise AssertionError(kind)
+        return ["track", str(path), "--database", str(ctx["database"]), "--out", str(tmp_path / "est.npz")], path
+    return build
+
+
+OBSERVATION_23 = {k: _obs(k) for k in (
+    "complex_flows", "string_flows", "bool_flows", "fractional_frame", "n_frames_62_5", "n_frames_array",
+    "frame_huge", "nan_principal_point", "infinite_focal", "focal_1e-300", "image_1e12_px", "velocity_1e300",
+    "camera_height_1e300", "camera_motion_1e300", "fps_1e300", "header_claims_1e12_rows", "archive_expands_3gb",
+    "no_flow_at_all", "fifo", "dev_zero", "sparse_1gb")}
+
+
+# The command line: arguments refused before any work, output paths that cannot be written.
+
+def _track(extra: list[str], named: str, setup=None):
+    def build(tmp_path, ctx):
+        obs = tmp_path / "obs.npz"
+        _observation().save(obs)
+        if setup is not None:
+            setup(tmp_path)
+        argv = ["track", str(obs), "--database", str(ctx["database"])]
+        return argv + [a.replace("TMP", str(tmp_path)) for a in extra], Path(named.replace("TMP", str(tmp_path)))
+    return build
+
+
+def _evaluate_tiny(extra: list[str], named: str, setup=None):
+    def build(tmp_path, ctx):
+        path = tmp_path / "tiny.yaml"
+        path.write_text(TINY_YAML)
+        if setup is not None:
+            setup(tmp_path)
+        argv = ["evaluate", str(path), "--results", str(tmp_path / "results"), "--quiet"]
+        return argv + [a.replace("TMP", str(tmp_path)) for a in extra], Path(named.replace("TMP", str(tmp_path)))
+    return build
+
+
+def _touch(rel: str):
+    return lambda tmp_path: (tmp_path / rel).write_text("x")
+
+
+def _mkdir(rel: str):
+    return lambda tmp_path: (tmp_path / rel).mkdir(parents=True)
+
+
+COMMAND_LINE_CASES = {
+    "particles_1e11_text": _track(["--particles", "1e11"], "--particles"),
+    "particles_1e11": _track(["--particles", "100000000000"], "particles"),
+    "seed_negative": _track(["--seed", "-1"], "--seed"),
+    "seed_5000_digits": _track(["--seed", "9" * 5000], "--seed"),
+    "out_is_directory": _track(["--out", "TMP/outdir"], "TMP/outdir", _mkdir("outdir")),
+    "out_below_a_file": _track(["--out", "TMP/afile/est.npz"], "TMP/afile/est.npz", _touch("afile")),
+    "train_out_is_directory": lambda tmp_path, ctx: (
+        (tmp_path / "dbdir").mkdir(), (["train-database", "--out", str(tmp_path / "dbdir")], tmp_path / "dbdir"))[1],
+    "simulate_truth_below_file": lambda tmp_path, ctx: (
+        (tmp_path / "f").write_text("x"), (["simulate", "--class", "walk", "--out", str(tmp_path / "o.npz"),
+                                            "--truth", str(tmp_path / "f" / "t.npz")], tmp_path / "f" / "t.npz"))[1],
+    "jobs_zero": _evaluate_tiny(["--jobs", "0"], "--jobs"),
+    "jobs_100000": _evaluate_tiny(["--jobs", "100000"], "--jobs"),
+    "jobs_not_a_number": _evaluate_tiny(["--jobs", "two"], "--jobs"),
+}
+
+
+# Results directories (`harness evaluate` of a valid scenario): what is in the way is refused before any run,
+# and a refused journal is left exactly as it was.
+
+_RESULT = "results/tiny"
+_RECORD = '{"key": "c000/r000/walk/d008", "hash": "0123456789abcdef", "rows": [{"method": "full"}]}\n'
+
+
+def _journal(content: bytes):
+    def setup(tmp_path):
+        (tmp_path / _RESULT).mkdir(parents=True)
+        (tmp_path / _RESULT / "runs.jsonl").write_bytes(content)
+    return setup
+
+
+def _results_fifo(tmp_path):
+    (tmp_path / _RESULT).mkdir(parents=True)
+    os.mkfifo(tmp_path / _RESULT / "runs.jsonl")
+
+
+def _results_outside(tmp_path):
+    (tmp_path / "results").mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / _RESULT).symlink_to(tmp_path / "elsewhere")
+
+
+RESULTS_CASES = {
+    "results_is_a_file": _evaluate_tiny([], "TMP/results", _touch("results")),
+    "results_below_a_file": _evaluate_tiny(["--results", "TMP/afile/results"], "TMP/afile", _touch("afile")),
+    "scenario_dir_is_a_file": _evaluate_tiny([], "TMP/results/tiny", lambda t: (_mkdir("results")(t),
+                                                                              _touch(_RESULT)(t))),
+    "scenario_dir_outside_results": _evaluate_tiny([], "TMP/results/tiny", _results_outside),
+    "journal_is_a_directory": _evaluate_tiny([], "runs.jsonl", _mkdir(_RESULT + "/runs.jsonl")),
+    "journal_is_a_fifo": _evaluate_tiny([], "runs.jsonl", _results_fifo),
+    "lock_is_a_directory": _evaluate_tiny([], "runs.jsonl.lock", _mkdir(_RESULT + "/runs.jsonl.lock")),
+    "report_is_a_directory": _evaluate_tiny([], "report.md", _mkdir(_RESULT + "/report.md")),
+    "table_is_a_directory": _evaluate_tiny([], "summary.csv", _mkdir(_RESULT + "/summary.csv")),
+    "plots_is_a_file": _evaluate_tiny([], "plots", lambda t: (_mkdir(_RESULT)(t), _touch(_RESULT + "/plots")(t))),
+    "cache_is_a_file": _evaluate_tiny([], "cache", lambda t: (_mkdir("results")(t), _touch("results/cache")(t))),
+    "journal_random_bytes": _evaluate_tiny([], "runs.jsonl", _journal(np.random.default_rng(3).bytes(3000))),
+    "journal_rows_not_a_list": _evaluate_tiny([], "runs.jsonl", _journal(
+        b'{"key": "c000/r000/walk/d008", "hash": "x", "rows": 5}\n')),
+    "journal_key_a_list": _evaluate_tiny([], "runs.jsonl", _journal(
+        b'{"key": ["c000"], "hash": "x", "rows": []}\n')),
+    "journal_key_escapes": _evaluate_tiny([], "runs.jsonl", _journal(
+        b'{"key": "c000/r000/../d008", "hash": "x", "rows": []}\n')),
+    "journal_nested_100k": _evaluate_tiny([], "runs.jsonl", _journal(b"[" * 100_000 + b"]" * 100_000 + b"\n")),
+    "journal_huge_number": _evaluate_tiny([], "runs.jsonl", _journal(b'{"key": 1' + b"0" * 5000 + b"}\n")),
+    "journal_bad_line_then_torn": _evaluate_tiny([], "runs.jsonl", _journal(
+        _RECORD.encode() + b"not json\n" + b'{"key": "c0')),
+    "journal_stale_then_torn": _evaluate_tiny([], "runs.jsonl", _journal(_RECORD.encode() + b'{"key": "c0')),
+}
+
+
+# Capture directories: files that lead outside through symbolic links, files that are not files.
+
+CAPTURE_HEADER = "file,format,skeleton,subject,trial,class,start,end,fps\n"
+
+
+def _capture(rows: str, setup=None, manifest: str = "MANIFEST.csv"):
+    def build(tmp_path, ctx):
+        capture = tmp_path / "captures"
+        capture.mkdir()
+        if setup is not None:
+            setup(capture, tmp_path)
+        else:
+            (capture / manifest).write_text(CAPTURE_HEADER + rows)
+        path = tmp_path / "capture.yaml"
+        path.write_text(f"name: x\ndatabase: {{source: capture, capture_dir: {capture}, manifest: {manifest}}}\n"
+                        f"test: {{split: all}}\n")
+        return ["evaluate", str(path), "--results", str(tmp_path / "results")], capture / manifest
+    return build
+
+
+def _link_row(target: str, name: str = "walk.bvh"):
+    def setup(capture, tmp_path):
+        (capture / name).symlink_to(target)
+        (capture / "MANIFEST.csv").write_text(CAPTURE_HEADER + f"{name},bvh,,1,1,walk,0,10,120\n")
+    return setup
+
+
+def _linked_folder(capture, tmp_path):
+    (capture / "sys").symlink_to("/")
+    (capture / "MANIFEST.csv").write_text(CAPTURE_HEADER + "sys/etc/passwd,bvh,,1,1,walk,0,10,120\n")
+
+
+def _manifest_link(capture, tmp_path):
+    (tmp_path / "outside.csv").write_text(CAPTURE_HEADER + "a.bvh,bvh,,1,1,walk,0,10,120\n")
+    (capture / "MANIFEST.csv").symlink_to(tmp_path / "outside.csv")
+
+
+def _fifo_row(capture, tmp_path):
+    os.mkfifo(capture / "walk.bvh")
+    (capture / "MANIFEST.csv").write_text(CAPTURE_HEADER + "walk.bvh,bvh,,1,1,walk,0,10,120\n")
+
+
+def _huge_row(capture, tmp_path):
+    with open(capture / "walk.bvh", "wb") as fh:
+        fh.truncate(300 * 2**20)
+    (capture / "MANIFEST.csv").write_text(CAPTURE_HEADER + "walk.bvh,bvh,,1,1,walk,0,10,120\n")
+
+
+CAPTURE_CASES = {
+    "row_links_to_a_system_file": _capture("", _link_row("/etc/passwd")),
+    "row_links_outside": _capture("", lambda c, t: ((t / "out.bvh").write_text("HIERARCHY\n"),
+                                                    _link_row(str(t / "out.bvh"))(c, t))),
+    "row_through_a_folder_linked_to_root": _capture("", _linked_folder),
+    "manifest_links_outside": _capture("", _manifest_link),
+    "row_is_a_fifo": _capture("", _fifo_row),
+    "row_is_300mb": _capture("", _huge_row),
+    "row_missing_at_load": _capture("absent.bvh,bvh,,1,1,walk,0,10,120\n"),
+    "capture_dir_missing": lambda tmp_path, ctx: (
+        (tmp_path / "c.yaml").write_text(f"name: x\ndatabase: {{source: capture, capture_dir: {tmp_path}/none}}\n"
+                                         "test: {split: all}\n"),
+        (["evaluate", str(tmp_path / "c.yaml"), "--results", str(tmp_path / "r")], tmp_path / "c.yaml"))[1],
+}
+
+
+# Messages: a malformed tolerance file is one line naming it.
+
+CI_SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "ci.yaml"
+
+
+def _regress(tolerances: str, baseline: str = '{"scenario": "ci", "metrics": {"full/correct": 0.8}}\n',
+             named: str = "tolerances.yaml"):
+    def build(tmp_path, ctx):
+        (tmp_path / "results" / "ci").mkdir(parents=True)
+        (tmp_path / "results" / "ci" / "metrics.json").write_text('{"full/correct": 0.8}\n')
+        base = tmp_path / "baseline"
+        base.mkdir()
+        (base / "metrics.json").write_text(baseline)
+        (base / "tolerances.yaml").write_text(tolerances)
+        return (["regress", "--no-run", "--scenario", str(CI_SCENARIO), "--results", str(tmp_path / "results"),
+                 "--baseline", str(base)], base / named)
+    return build
+
+
+MESSAGE_CASES = {
+    "tolerances_not_yaml": _regress("metrics:\n  correct: {kind: higher\n"),
+    "tolerances_duplicate_key": _regress("metrics:\n  correct: {kind: higher}\n  correct: {kind: lower}\n"),
+    "tolerances_tab_indent": _regress("metrics:\n\tcorrect: {kind: higher}\n"),
+    "baseline_metric_not_a_number": _regress("metrics: {}\n", '{"metrics": {"full/correct": "high"}}\n',
+                                             "metrics.json"),
+    "baseline_nested_deep": _regress("metrics: {}\n", "[" * 100_000 + "]" * 100_000, "metrics.json"),
+}
+
+CORPUS_23 = {"paths": PATH_CASES, "sweeps": SWEEP_CASES, "engine": ENGINE_CASES, "sizes": SIZE_CASES,
+             "yaml": YAML_CASES, "files": FILE_CASES, "obstacles": OBSTACLE_CASES, "observations": OBSERVATION_23,
+             "command_line": COMMAND_LINE_CASES, "results": RESULTS_CASES, "captures": CAPTURE_CASES,
+             "messages": MESSAGE_CASES}
+
+
+@pytest.mark.parametrize("group, case", [(g, c) for g, cases in CORPUS_23.items() for c in sorted(cases)],
+                         ids=lambda v: v)
+def test_bad_input_is_refused_at_load(group, case, tmp_path, capsys, database_file, monkeypatch):
+    import time
+
+    from harness.evaluation import pipeline
+    from fakes import fake_run
+
+    # Nothing here may reach a run; if one did, it would be this stand-in (and the tree check would fail).
+    monkeypatch.setattr(pipeline, "run_one", fake_run)
+    argv, named = CORPUS_23[group][case](tmp_path, {"database": database_file})
+    t0 = time.perf_counter()
+    err = _check(argv, named, tmp_path, capsys)
+    if case == "sweep_20000_values":
+        assert time.perf_counter() - t0 < 2.0, "a 20,000-value sweep must be refused within 2 s"
+    assert "root:x" not in err                   # no file's content is ever printed
+
+
+def test_read_only_results_are_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    """A read-only file system (or, without root, a directory without write permission)."""
+    import subprocess
+
+    from harness.evaluation import pipeline
+    from fakes import fake_run
+
+    monkeypatch.setattr(pipeline, "run_one", fake_run)
+    scenario = tmp_path / "tiny.yaml"
+    scenario.write_text(TINY_YAML)
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    mounted = False
+    if os.geteuid() == 0:       # root writes through permissions: mount a read-only file system instead
+        mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(ro)],
+                                 capture_output=True).returncode == 0
+        if not mounted:
+            pytest.skip("running as root without permission to mount a read-only file system")
+    else:
+        ro.chmod(0o555)
+    try:
+        _check(["evaluate", str(scenario), "--results", str(ro / "results")], ro, tmp_path, capsys)
+        _check(["track", str(scenario), "--database", str(scenario), "--out", str(ro / "est.npz")], ro, tmp_path,
+               capsys)
+    finally:
+        if mounted:
+            subprocess.run(["umount", str(ro)], check=True)
+        else:
+            ro.chmod(0o755)
+
+
+def test_a_scheduler_that_does_not_answer_is_one_line_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    import socket
+
+    pytest.importorskip("dask.distributed")
+    from harness.evaluation import runner
+
+    monkeypatch.setattr(runner, "SCHEDULER_TIMEOUT_S", 1.0)
+    with socket.socket() as s:          # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    scenario = tmp_path / "tiny.yaml"
+    scenario.write_text(TINY_YAML)
+    err = _check(["evaluate", str(scenario), "--results", str(tmp_path / "results"), "--scheduler",
+                  f"tcp://127.0.0.1:{port}"], Path("--scheduler"), tmp_path, capsys)
+    assert "no scheduler answered" in err
+
+
 # --- the checks ------------------------------------------------------------------------------------------
 
-def _tree(root: Path) -> set[str]:
-    return {str(p.relative_to(root)) for p in root.rglob("*")}
+def _tree(root: Path) -> dict[str, tuple]:
+    """Every path under ``root`` with its kind and, for files, size and content hash (a link is not followed:
+    a link to ``/`` is not walked, and FIFOs are never opened)."""
+    import hashlib
+    import stat
+
+    out = {}
+    for directory, dirs, files in os.walk(root):
+        for name in dirs + files:
+            path = Path(directory) / name
+            st = path.lstat()
+            rel = str(path.relative_to(root))
+            if stat.S_ISLNK(st.st_mode):
+                out[rel] = ("link", os.readlink(path))
+            elif stat.S_ISREG(st.st_mode):
+                digest = hashlib.sha256(path.read_bytes()).hexdigest() if st.st_size < 2**25 else st.st_mtime_ns
+                out[rel] = ("file", st.st_size, digest)
+            else:
+                out[rel] = (stat.S_IFMT(st.st_mode),)
+    return out
 
 
 def _check(argv: list[str], named: Path, root: Path, capsys) -> str:
@@ -301,10 +820,13 @@ def _check(argv: list[str], named: Path, root: Path, capsys) -> str:
     assert len(lines) == 1 and lines[0].startswith("error: "), err
     assert "Traceback" not in err and "Error:" not in lines[0].split(":", 2)[1]
     assert str(named) in lines[0] or named.name in lines[0], lines[0]
-    assert _tree(root) == before, "something was written"
+    assert _tree(root) == before, "something was written or changed"
     return lines[0]
 
 
 def test_corpus_has_at_least_60_inputs():
     n = len(SCENARIOS) + 2 + len(OBSERVATION_CASES) + len(DATABASE_CASES) + len(CAPTURE_FILES) + len(MANIFESTS)
     assert n >= 60
+    # Issue 23: at least 60 more, in every group it names.
+    assert sum(len(cases) for cases in CORPUS_23.values()) + 2 >= 60
+    assert all(len(cases) >= 3 for cases in CORPUS_23.values())

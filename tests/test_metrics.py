@@ -146,6 +146,44 @@ def test_heading_and_tilt_split_a_known_rotation():
     assert out["tilt_err_deg"] == pytest.approx(12.0, abs=1e-6)
 
 
+def _facing(heading_deg: np.ndarray, cam: np.ndarray) -> np.ndarray:
+    """Camera-frame quaternions of an upright body whose heading (its x axis) is ``heading_deg`` about world z."""
+    return from_matrix(np.swapaxes(cam, 1, 2) @ to_matrix(yaw(np.deg2rad(np.asarray(heading_deg, float)))))
+
+
+def test_heading_up_to_the_twin_by_hand():
+    """A level camera at the world origin's -x side looks along +x. Depth reflection through its image plane
+    is world x -> -x, then the body mirror y -> -y: diag(-1, 1, 1) yaw(h) diag(1, -1, 1) = yaw(180 - h). So a
+    body facing the camera (h = 180) has a twin facing away (h = 0), one seen from the side (h = 90) is its own
+    twin, and at h = 135 the twin faces h = 45."""
+    cam = _camera(0.0, 1)
+    for true_h, est_h, direct, up_to_twin in [
+            (180.0, 0.0, 180.0, 0.0),       # front view, the estimate is the twin: all of the error is the twin's
+            (180.0, 170.0, 10.0, 10.0),     # front view, 10 deg off the truth (170 off the twin)
+            (90.0, 120.0, 30.0, 30.0),      # side view: the twin is the truth, nothing to forgive
+            (135.0, 45.0, 90.0, 0.0),       # oblique: the twin faces 45 deg
+            (135.0, 60.0, 75.0, 15.0)]:
+        est, true = _facing([est_h], cam), _facing([true_h], cam)
+        assert metrics.heading_tilt_errors(est, true, cam)["heading_err_deg"] == pytest.approx(direct, abs=1e-6)
+        assert metrics.heading_twin_error(est, true, cam)["heading_err_twin_deg"] == pytest.approx(up_to_twin,
+                                                                                                  abs=1e-6)
+    # Per frame: a track on the truth in frame 0 and on the twin in frame 1 (front view) is right up to the twin.
+    cam2 = _camera(0.0, 2)
+    est, true = _facing([180.0, 0.0], cam2), _facing([180.0, 180.0], cam2)
+    assert metrics.heading_tilt_errors(est, true, cam2)["heading_err_deg"] == pytest.approx(90.0, abs=1e-6)
+    assert metrics.heading_twin_error(est, true, cam2)["heading_err_twin_deg"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_heading_up_to_the_twin_is_never_above_the_heading_error(rng):
+    cam = _camera(25.0, 50)
+    est = exp(rng.normal(scale=1.5, size=(50, 3)))
+    true = exp(rng.normal(scale=1.5, size=(50, 3)))
+    plain = metrics.heading_tilt_errors(est, true, cam)["heading_err_deg"]
+    up_to_twin = metrics.heading_twin_error(est, true, cam)["heading_err_twin_deg"]
+    assert 0.0 <= up_to_twin < plain
+    assert metrics.heading_twin_error(true, true, cam)["heading_err_twin_deg"] == pytest.approx(0.0, abs=1e-6)
+
+
 def test_camera_frame_mpjpe_ignores_translation_and_counts_rotation(body, rng):
     true = _walkish(body, rng)
     est = true.copy()

@@ -155,3 +155,139 @@ def test_cache_builds_once_and_loads_after(tmp_path):
     second = cached(path, build, save, np.load)
     assert builds == [1] and np.array_equal(first, second)
     assert json.loads(path.with_suffix(".json").read_text())["states"] == 20
+
+
+# --- issue 23: the main process killed with --jobs 2, a disk that fills up ----------------------------------
+
+_EVALUATE = """
+import sys
+sys.path.insert(0, {tests!r})
+if __name__ == "__main__":          # the spawned workers import this module again: they must not evaluate
+    import fakes
+    import harness.evaluation.pipeline as pipeline
+    pipeline.run_one = fakes.slower_fake_run        # workers receive it by name (fakes.slower_fake_run)
+    from harness.cli import main
+    sys.exit(main(sys.argv[1:]))
+"""
+
+
+def _processes() -> dict[int, tuple[int, str]]:
+    """pid -> (parent pid, state) of every process, from /proc."""
+    out = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = Path(f"/proc/{entry}/stat").read_text()
+            except OSError:
+                continue
+            fields = stat[stat.rindex(")") + 2:].split()
+            out[int(entry)] = (int(fields[1]), fields[0])
+    return out
+
+
+def _descendants(pid: int) -> set[int]:
+    table, found, frontier = _processes(), set(), [pid]
+    while frontier:
+        parent = frontier.pop()
+        for child, (ppid, _) in table.items():
+            if ppid == parent and child not in found:
+                found.add(child)
+                frontier.append(child)
+    return found
+
+
+def _alive(pids: set[int]) -> set[int]:
+    table = _processes()
+    return {p for p in pids if p in table and table[p][1] != "Z"}
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
+def test_sigkill_of_evaluate_with_two_jobs_leaves_no_process_and_resumes(tiny, tmp_path):
+    """`harness evaluate --jobs 2` killed with SIGKILL while runs are in flight: its workers and the resource
+    tracker are gone within 5 s (they watch their parent), and the resumed journal's rows equal an
+    uninterrupted run's."""
+    script = tmp_path / "evaluate.py"
+    script.write_text(_EVALUATE.format(tests=str(Path(__file__).parent)))
+    scenario = tmp_path / "tiny.yaml"
+    scenario.write_text(json.dumps(TINY))           # JSON is YAML
+    results = tmp_path / "results"
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    proc = subprocess.Popen([sys.executable, str(script), "evaluate", str(scenario), "--results", str(results),
+                             "--jobs", "2", "--quiet"], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    journal = results / "tiny" / "runs.jsonl"
+    children: set[int] = set()
+    try:
+        deadline = time.time() + 60
+        while time.time() < deadline and proc.poll() is None:
+            if journal.exists() and journal.read_bytes().count(b"\n") >= 2:
+                break
+            time.sleep(0.02)
+        children = _descendants(proc.pid)
+        assert len(children) >= 2, "the two workers should be running"
+        proc.kill()
+        proc.wait()
+        killed_at = time.time()
+        while _alive(children) and time.time() - killed_at < 5.0:
+            time.sleep(0.05)
+        assert not _alive(children), f"left running 5 s after the kill: {sorted(_alive(children))}"
+    finally:
+        for pid in _alive(children):         # only the processes this test started
+            os.kill(pid, signal.SIGKILL)
+    partial = read_journal(journal, repair=False)
+    assert 0 < len(partial) < 24, "the kill should interrupt the sweep"
+    resumed = runner.run_scenario(tiny, results / "tiny", fake_run, progress=False)
+    reference = runner.run_scenario(tiny, tmp_path / "clean" / "tiny", fake_run, progress=False)
+    pd.testing.assert_frame_equal(resumed, reference)
+    assert len({r["key"] for r in read_journal(journal)}) == 24
+
+
+def test_a_full_disk_stops_with_one_error_and_loses_no_recorded_run(tiny, tmp_path, monkeypatch):
+    import errno
+
+    from harness.evaluation import journal as journal_module
+
+    real_fsync, calls = os.fsync, []
+
+    def full(fd):
+        calls.append(fd)
+        if len(calls) == 4:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real_fsync(fd)
+
+    monkeypatch.setattr(journal_module.os, "fsync", full)
+    with pytest.raises(ResultsError, match=r"runs.jsonl: cannot record run .* \(No space left on device\); the runs "
+                                           r"recorded before it are kept"):
+        runner.run_scenario(tiny, tmp_path / "t", fake_run, progress=False)
+    monkeypatch.setattr(journal_module.os, "fsync", real_fsync)
+    assert len(read_journal(tmp_path / "t" / "runs.jsonl", repair=False)) >= 3
+    resumed = runner.run_scenario(tiny, tmp_path / "t", fake_run, progress=False)
+    pd.testing.assert_frame_equal(resumed, runner.run_scenario(tiny, tmp_path / "clean", fake_run, progress=False))
+
+
+def test_a_refused_write_is_one_error_naming_the_file_and_leaves_no_temporary(tmp_path, monkeypatch):
+    import errno
+
+    from harness import io
+
+    def full(src, dst):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(io.os, "replace", full)
+    with pytest.raises(io.FileWriteError, match=r"report.md: cannot write \(No space left on device\)"):
+        io.write_text_atomic(tmp_path / "report.md", "text")
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.undo()
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(io.FileWriteError, match="afile/report.md: cannot write"):
+        io.write_text_atomic(tmp_path / "afile" / "report.md", "text")
+
+
+def test_swept_repeats_run_per_condition_with_shared_seeds(tmp_path):
+    s = parse_scenario({**{k: v for k, v in TINY.items() if k != "sweep"}, "sweep": {"repeats": [1, 3]}})
+    runs = runner.plan(s, tmp_path)
+    per = {c: sorted({r.repeat for r in runs if r.condition == c}) for c in (0, 1)}
+    assert per == {0: [0], 1: [0, 1, 2]}
+    seeds = {(r.condition, r.repeat, r.test_class): r.seed for r in runs}
+    assert all(seeds[(0, 0, c)] == seeds[(1, 0, c)] for c in ("walk", "run", "kick"))     # repeat 0: shared
+    assert len({seeds[(1, r, "walk")] for r in range(3)}) == 3

@@ -43,8 +43,10 @@ def test_a_five_line_scenario_gets_the_documented_defaults():
     s = parse_scenario({"name": "small", "sweep": {"engine.particles": [50, 100]}})
     assert s.classes == PROCEDURAL_CLASSES and s.database.train_demos == 8 and s.database.states == 20
     assert s.database.fps == 30.0 and s.test.demos_per_class == 2 and s.test.split == "heldout"
+    # A swept key's section holds the first condition's value (its unswept value is never run).
     assert (s.engine.particles, s.engine.model_points, s.engine.model_seed, s.engine.init_distance) == \
-        (200, 150, 7, (2.0, 8.0))
+        (50, 150, 7, (2.0, 8.0))
+    assert parse_scenario({"name": "small"}).engine.particles == 200
     assert s.methods == ("full", "full_smoothed", "gt_base", "no_database", "joint_space")
 
 
@@ -137,7 +139,7 @@ def test_engine_reaches_every_tracker_setting_by_name():
     assert list(EngineConfig.model_fields) == names
     s = parse_scenario({"name": "e", "engine": {"guide_fraction": 0.2, "init_elevation": [0, 20]},
                         "sweep": {"engine.n_eff_filter": [2.0, 6.0]}})
-    assert tracker_config(s) == TrackerConfig(guide_fraction=0.2, init_elevation=(0.0, 20.0))
+    assert tracker_config(s) == TrackerConfig(guide_fraction=0.2, init_elevation=(0.0, 20.0), n_eff_filter=2.0)
     assert [c.config.engine.n_eff_filter for c in conditions(s)] == [2.0, 6.0]
 
 
@@ -179,8 +181,8 @@ def test_with_captures_trains_on_the_other_subjects_captures(tmp_path, monkeypat
     from harness.motion import Motion
 
     directory = require_mocap()
-    for name in ("02_01.amc", "02.asf", "09_01.bvh"):
-        (tmp_path / name).symlink_to(directory / name)
+    for name in ("02_01.amc", "02.asf", "09_01.bvh"):     # copies: a link out of the directory is refused
+        (tmp_path / name).write_bytes((directory / name).read_bytes())
     (tmp_path / "MANIFEST.csv").write_text(
         "file,format,skeleton,subject,trial,class,start,end,fps\n02_01.amc,amc,02.asf,2,1,walk,0,41,120\n"
         "02_01.amc,amc,02.asf,2,1,walk,41,82,120\n09_01.bvh,bvh,,9,1,run,1,41,120\n")
@@ -193,3 +195,37 @@ def test_with_captures_trains_on_the_other_subjects_captures(tmp_path, monkeypat
     motions = pipeline.training_motions(s, test)
     assert [(m.source == "procedural", m.label, m.subject) for m in motions] == [
         (True, "walk", "0"), (True, "run", "0"), (False, "walk", "2"), (False, "walk", "2")]
+
+
+def test_every_swept_condition_is_validated_as_written_not_the_base():
+    """The unswept value of a swept key is never run, so a rule between fields holds per condition: amount 0.4
+    beside a swept preset is valid, and the condition that breaks a rule is named."""
+    s = parse_scenario({"name": "p", "occluders": {"amount": 0.4}, "sweep": {"occluders.preset": ["pillar", "boxes"]}})
+    assert [(c.config.occluders.preset, c.config.occluders.amount) for c in conditions(s)] == [
+        ("pillar", 0.4), ("boxes", 0.4)]
+    with pytest.raises(ScenarioError, match=r"s.yaml: occluders.amount: preset 'none' hides nothing.*"
+                                            r"\(condition occluders.preset=none\)"):
+        parse_scenario({"name": "p", "occluders": {"amount": 0.4},
+                        "sweep": {"occluders.preset": ["pillar", "none"]}}, "s.yaml")
+    with pytest.raises(ScenarioError, match=r"camera.distance: .*inside the standing subject.*"
+                                            r"\(condition camera.distance=0.05\)"):
+        parse_scenario({"name": "c", "camera": {"elevation": 0}, "sweep": {"camera.distance": [4, 0.05]}}, "c.yaml")
+    with pytest.raises(ScenarioError, match=r"sweep\['markers.count'\]\[1\]: at most 10000 markers"):
+        parse_scenario({"name": "m", "sweep": {"markers.count": [10, 20000]}}, "m.yaml")
+
+
+def test_yaml_anchors_and_merge_keys_still_work(tmp_path):
+    path = tmp_path / "a.yaml"
+    path.write_text("name: a\nseed: &s 4\ndatabase: {seed: *s}\n"
+                    "engine: {<<: {particles: 50, model_points: 60}, particles: 80}\n")
+    s = load_scenario(path)
+    assert (s.seed, s.database.seed, s.engine.particles, s.engine.model_points) == (4, 4, 80, 60)
+
+
+def test_capture_classes_are_checked_in_every_condition(tmp_path):
+    mocap = require_mocap()
+    s = parse_scenario({"name": "m", "database": {"source": "capture"}, "test": {"split": "all"},
+                        "sweep": {"database.classes": [["walk"], ["walk", "wlak"]]}})
+    with pytest.raises(ScenarioError, match=r"s.yaml: database.classes\[1\]: unknown class 'wlak' .*"
+                                            r"\(condition database.classes="):
+        resolve_capture(s, mocap, where="s.yaml")

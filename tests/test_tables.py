@@ -158,3 +158,25 @@ def test_a_report_without_recognition_has_no_recognition_sections(rows, tmp_path
                     "## Paired tests", "## Calibration of the final class posterior"):
         assert section not in alone and section in whole
     assert "## Headline" in alone and "no_database" in alone
+
+
+def test_recognition_and_heading_by_viewing_direction(tmp_path):
+    """by_view bins the runs by |view_azimuth_deg| (front < 45, side, back >= 135) and pools conditions; a
+    method's given columns are left out; the report draws it."""
+    rows = run_scenario(parse_scenario(TINY), tmp_path / "tiny", fake_run, progress=False)
+    keys = sorted(rows["run_key"].unique())
+    azimuth = {k: [10.0, -60.0, 170.0, 100.0][i % 4] for i, k in enumerate(keys)}
+    rows = rows.assign(view_azimuth_deg=rows["run_key"].map(azimuth),
+                       heading_err_deg=rows["base_rot_err_deg"], heading_err_twin_deg=rows["base_rot_err_deg"] / 2)
+    table = tables.by_view(rows, n_boot=200)
+    full = table[(table["method"] == "full") & (table["metric"] == "correct")].set_index("view")
+    for view, azimuths in (("front", {10.0}), ("side", {-60.0, 100.0}), ("back", {170.0})):
+        g = rows[(rows["method"] == "full") & rows["view_azimuth_deg"].isin(azimuths)]
+        assert full.loc[view, "n"] == len(g) and full.loc[view, "mean"] == pytest.approx(g["correct"].mean())
+    assert not ((table["method"] == "gt_base") & table["metric"].str.startswith("heading")).any()   # given
+    assert set(table[table["method"] == "no_database"]["metric"]) == set()   # recognises nothing, given heading
+    assert tables.by_view(rows.drop(columns="view_azimuth_deg")).empty
+    make_report(parse_scenario(TINY), tmp_path / "tiny", rows)
+    assert (tmp_path / "tiny" / "plots" / "by_view.png").is_file()
+    assert "## Against the viewpoint" in (tmp_path / "tiny" / "report.md").read_text()
+    assert (tmp_path / "tiny" / "by_view.csv").is_file()

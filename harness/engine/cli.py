@@ -14,6 +14,13 @@ from harness.commands import command
 from harness.errors import EngineError
 from harness.io import save_npz_atomic
 
+MAX_DATABASE_BYTES = 1 << 30     # a database file, and what its arrays expand to (the default one is 2 MB)
+
+
+def _check_seed(seed: int) -> None:
+    if not 0 <= seed < 2**63:
+        raise EngineError(f"--seed must be in [0, 2**63), got {seed}")
+
 
 def _train_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="database file to write (.npz)")
@@ -30,8 +37,11 @@ def _train_args(p: argparse.ArgumentParser) -> None:
 def train_database(args: argparse.Namespace) -> int:
     """Learn the motion database (one HMM per primitive) and write it as .npz."""
     from harness.engine.database import MotionDatabase
+    from harness.io import check_output_file
     from harness.motion.performer import CYCLIC
 
+    check_output_file(args.out)                 # before the training, not after it
+    _check_seed(args.seed)
     if args.capture_dir:
         from harness.motion.captures import load_capture_set
 
@@ -61,15 +71,22 @@ def track(args: argparse.Namespace) -> int:
     from harness.body import BodyModel
     from harness.engine.database import MotionDatabase
     from harness.engine.tracker import Tracker, TrackerConfig
+    from harness.io import check_output_file, inspect_npz
     from harness.observation import Observation
 
+    if args.out is not None:
+        check_output_file(args.out)             # before the tracking, not after it
+    _check_seed(args.seed)
+    config = TrackerConfig(particles=args.particles)
     obs = Observation.load(args.observation)
+    inspect_npz(args.database, EngineError, "database", MAX_DATABASE_BYTES)
     db = MotionDatabase.load(args.database)
     if abs(db.fps_ - obs.fps) > 1e-6:
         raise EngineError(f"{args.observation}: observed at {obs.fps:g} fps but the database was learned at "
                           f"{db.fps_:g} fps")
-    est = Tracker(db, BodyModel.load(), TrackerConfig(particles=args.particles),
-                  np.random.default_rng(args.seed)).run(obs)
+    if obs.counts.sum() == 0:       # before the engine is built: its error would name no file
+        raise EngineError(f"{args.observation}: no frame has any flow: nothing to estimate")
+    est = Tracker(db, BodyModel.load(), config, np.random.default_rng(args.seed)).run(obs)
     top = np.argsort(est.class_posterior[-1])[::-1][:3]
     print(f"{args.observation}: {len(obs)} frames, {est.ms_per_frame.mean():.1f} ms/frame; recognised "
           + ", ".join(f"{est.classes[i]} {est.class_posterior[-1, i]:.2f}" for i in top))

@@ -90,10 +90,79 @@ class TrackerConfig:
         if self.particles < self.n_tracks:
             raise EngineError(f"engine setting particles ({self.particles}) must be at least the number of "
                               f"tracks ({self.n_tracks})")
+        _check_bounds(self)
 
     @property
     def n_tracks(self) -> int:
         return 1 + len(self.track_turns) + int(self.twin_track)
+
+
+# Sizes the engine allocates by: the first frame weighs particles x init_factor hypotheses against every
+# model point, about 190 bytes per hypothesis-point (measured: 0.45 GB for 2000 x 8 x 150, 1.7 GB for
+# 4000 x 8 x 300), so 2e7 of them is about 4 GB. The settings ran before only to fail with a MemoryError.
+MAX_PARTICLES = 1_000_000
+MAX_MODEL_POINTS = 100_000
+MAX_HYPOTHESIS_POINTS = 20_000_000
+MAX_ITERATIONS = 1000            # EM, weight and Gauss-Newton steps, recovered tracks, classes weighed
+MAX_TRACK_TURNS = 16
+# Settings that must be >= 0, > 0, or within [lo, hi] (None: open), beyond the checks above; each ran before
+# with a meaningless result or failed deep inside a run (issue 23).
+_AT_LEAST_ZERO = ("model_seed", "weight_iterations", "refine_iterations", "recover_tracks", "smoothing_frames",
+                  "weight_smoothing", "position_noise", "rotation_noise", "tilt_noise", "guide_rotation_std",
+                  "occlusion_radius", "occlusion_depth", "min_spawn_ess", "track_merge_deg", "track_merge_m")
+_ABOVE_ZERO = ("open_cell_px", "floor_std", "floor_flight_height", "refine_position_std", "refine_rotation_std",
+               "track_prune_nats")
+_WITHIN = {"init_keep": (0.0, 1.0, "(0, 1]"), "weigh_class_mass": (0.0, 1.0, "(0, 1]"),
+           "start_spread": (None, 1.0, "[0, 1]"), "floor_flight": (None, 1.0, "[0, 1)")}
+_COUNTS = ("weight_iterations", "refine_iterations", "recover_tracks", "em_iterations", "weigh_classes",
+           "init_factor")
+
+
+def _check_bounds(cfg: TrackerConfig) -> None:
+    """Finite numbers, signs, ranges and the sizes above (``TrackerConfig.__post_init__``)."""
+    import math
+    from dataclasses import fields
+
+    for f in fields(cfg):
+        value = getattr(cfg, f.name)
+        items = value if isinstance(value, tuple) else (value,)
+        for v in items:
+            if isinstance(v, bool):
+                continue
+            if not isinstance(v, (int, float)) or (isinstance(v, float) and not math.isfinite(v)):
+                raise EngineError(f"engine setting {f.name} must be a finite number, got {value!r}")
+    for name in _AT_LEAST_ZERO:
+        if not getattr(cfg, name) >= 0:
+            raise EngineError(f"engine setting {name} must be >= 0, got {getattr(cfg, name)}")
+    for name in _ABOVE_ZERO:
+        if not getattr(cfg, name) > 0:
+            raise EngineError(f"engine setting {name} must be positive, got {getattr(cfg, name)}")
+    for name, (lo, hi, text) in _WITHIN.items():
+        v = getattr(cfg, name)
+        low_ok = v >= 0 if lo is None else v > lo
+        high_ok = v < hi if text.endswith(")") else v <= hi
+        if not (low_ok and high_ok):
+            raise EngineError(f"engine setting {name} must be in {text}, got {v}")
+    if cfg.weigh_classes < 1:
+        raise EngineError(f"engine setting weigh_classes must be at least 1, got {cfg.weigh_classes}")
+    for name in _COUNTS:
+        if getattr(cfg, name) > MAX_ITERATIONS:
+            raise EngineError(f"engine setting {name} must be at most {MAX_ITERATIONS}, got {getattr(cfg, name)}")
+    if cfg.particles > MAX_PARTICLES:
+        raise EngineError(f"engine setting particles must be at most {MAX_PARTICLES}, got {cfg.particles}")
+    if cfg.model_points > MAX_MODEL_POINTS:
+        raise EngineError(f"engine setting model_points must be at most {MAX_MODEL_POINTS}, got {cfg.model_points}")
+    if len(cfg.track_turns) > MAX_TRACK_TURNS:
+        raise EngineError(f"engine setting track_turns lists {len(cfg.track_turns)} turns, at most "
+                          f"{MAX_TRACK_TURNS}")
+    if round(cfg.init_keep * cfg.particles * cfg.init_factor) < 1:
+        raise EngineError(f"engine setting init_keep ({cfg.init_keep}) keeps no particle of the first frame's "
+                          f"{cfg.particles * cfg.init_factor}")
+    work = cfg.particles * cfg.init_factor * cfg.model_points
+    if work > MAX_HYPOTHESIS_POINTS:
+        raise EngineError(f"engine setting particles ({cfg.particles}) x init_factor ({cfg.init_factor}) x "
+                          f"model_points ({cfg.model_points}) = {work:.3g} hypothesis-points on the first frame, "
+                          f"more than {MAX_HYPOTHESIS_POINTS:.0e} (about 190 bytes each)")
 
 
 def settings_from_strings(items: list[str]) -> dict:

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any, TypeVar
 
-from harness.io import write_atomic, write_text_atomic
+from harness.io import FileWriteError, write_atomic, write_text_atomic
 
 T = TypeVar("T")
 
@@ -43,8 +43,13 @@ def cached(path: str | Path, build: Callable[[], T], save: Callable[[T, IO[bytes
     Holds an exclusive lock on ``path.lock`` while checking and building, so concurrent processes build once.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path.with_name(path.name + ".lock"), "a") as lock:
+    lock_path = path.with_name(path.name + ".lock")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(lock_path, "a")
+    except OSError as exc:          # full disk, read-only, a file in the way: one line naming it
+        raise FileWriteError(f"{lock_path}: cannot write ({exc.strerror or type(exc).__name__})") from None
+    with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
             if path.exists():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -11,6 +12,7 @@ from harness.commands import command
 DEFAULT_RESULTS = "results"
 DEFAULT_CI = "scenarios/ci.yaml"
 DEFAULT_BASELINE = "results/baseline"
+MAX_JOBS = 256          # local worker processes; more is a typo (each holds a few hundred MB)
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -38,14 +40,14 @@ def _evaluate_args(p: argparse.ArgumentParser) -> None:
 def _load(path: str, mocap_dir: str | None):
     from harness.evaluation.scenario import load_scenario, resolve_capture
 
-    return resolve_capture(load_scenario(path), mocap_dir)
+    return resolve_capture(load_scenario(path), mocap_dir, where=path)
 
 
 def _check_jobs(args) -> None:
     from harness.evaluation.runner import RunError
 
-    if args.jobs < 1:
-        raise RunError(f"--jobs: must be at least 1, got {args.jobs}")
+    if not 1 <= args.jobs <= MAX_JOBS:
+        raise RunError(f"--jobs: must be in [1, {MAX_JOBS}], got {args.jobs}")
 
 
 def _run(scenario, args, limit=None):
@@ -80,10 +82,13 @@ def _report(args: argparse.Namespace) -> int:
     from harness.evaluation.journal import ResultsError
     from harness.evaluation.report import make_report
 
+    from harness.evaluation.results_dir import check
+
     scenario = _load(args.scenario, args.mocap_dir)
     out = Path(args.results) / scenario.name
-    if not (out / "runs.jsonl").is_file():
+    if not os.path.lexists(out / "runs.jsonl"):
         raise ResultsError(f"{out / 'runs.jsonl'}: no runs yet (run `harness evaluate {args.scenario}`)")
+    check(out, Path(args.results) / "cache")
     print(make_report(scenario, out))
     return 0
 

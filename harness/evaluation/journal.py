@@ -16,14 +16,18 @@ import fcntl
 import json
 import math
 import os
+import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from harness.errors import HarnessError
+from harness.io import read_input_bytes
 
 JOURNAL_NAME = "runs.jsonl"
+MAX_JOURNAL_BYTES = 4 * 2**30      # 100,000 runs (the plan's limit) of five methods are about 2 GB
+RUN_KEY = re.compile(r"^c\d{3,}/r\d{3,}/(?!\.\.?/)[^/\x00]+/d\d{3,}$")    # no '..' part
 
 
 class ResultsError(HarnessError):
@@ -41,65 +45,105 @@ def _plain(value: Any) -> Any:
 
 def read(path: str | Path, repair: bool = True) -> list[dict]:
     """Records of a journal, in file order. A torn last line (no newline) is dropped, and cut from the file
-    when ``repair``; a malformed complete line raises ``ResultsError`` naming the line."""
+    when ``repair``, but only once every complete line has been read and found well formed: a journal that is
+    refused (``ResultsError`` naming the line: not JSON, not a record, not a regular file, too large) is never
+    modified."""
     path = Path(path)
-    if not path.exists():
+    if not os.path.lexists(path):
         return []
-    data = path.read_bytes()
+    data = read_input_bytes(path, ResultsError, "journal", MAX_JOURNAL_BYTES)
     end = data.rfind(b"\n") + 1
-    if end < len(data) and repair:
-        with open(path, "r+b") as fh:
-            fh.truncate(end)
-            os.fsync(fh.fileno())
     records = []
     for i, line in enumerate(data[:end].splitlines()):
         if not line.strip():
             continue
         try:
             rec = json.loads(line)
-        except json.JSONDecodeError as exc:
-            raise ResultsError(f"{path}: line {i + 1}: not a JSON record ({exc.msg}); move the file away to "
+        except (ValueError, RecursionError) as exc:     # not JSON, not UTF-8, nested too deep, 5000 digits
+            why = exc.msg if isinstance(exc, json.JSONDecodeError) else (
+                "nested too deeply" if isinstance(exc, RecursionError) else "not UTF-8 text or a malformed number")
+            raise ResultsError(f"{path}: line {i + 1}: not a JSON record ({why}); move the file away to "
                                f"start again") from None
-        if not isinstance(rec, dict) or not {"key", "hash", "rows"} <= rec.keys():
-            raise ResultsError(f"{path}: line {i + 1}: a record needs keys 'key', 'hash', 'rows'")
+        problem = _record_problem(rec)
+        if problem:
+            raise ResultsError(f"{path}: line {i + 1}: {problem}; move the file away to start again")
         records.append(rec)
+    if end < len(data) and repair:
+        try:
+            with open(path, "r+b") as fh:
+                fh.truncate(end)
+                os.fsync(fh.fileno())
+        except OSError as exc:
+            raise ResultsError(f"{path}: cannot cut its torn last line ({exc.strerror})") from None
     return records
+
+
+def _record_problem(rec: Any) -> str | None:
+    """What makes a parsed line not a journal record, or None."""
+    if not isinstance(rec, dict) or not {"key", "hash", "rows"} <= rec.keys():
+        return "a record needs keys 'key', 'hash', 'rows'"
+    if not isinstance(rec["key"], str) or not RUN_KEY.match(rec["key"]):
+        return "'key' must be a run key like c000/r000/walk/d008"
+    if not isinstance(rec["hash"], str):
+        return "'hash' must be a string"
+    if not isinstance(rec["rows"], list) or not all(isinstance(r, dict) for r in rec["rows"]):
+        return "'rows' must be a list of mappings"
+    return None
 
 
 class Journal:
     """An open journal for one scenario hash: the finished runs, and ``append`` for new ones.
 
     Holds an exclusive lock (``runs.jsonl.lock``) while open, so two evaluations cannot write one directory.
+    A journal that is malformed or holds runs of another hash (without ``fresh``) is refused before the
+    directory or the lock is created and before the journal is touched.
     """
 
     def __init__(self, directory: str | Path, scenario_hash: str, fresh: bool = False):
         self.directory = Path(directory)
         self.path = self.directory / JOURNAL_NAME
         self.hash = scenario_hash
-        self.directory.mkdir(parents=True, exist_ok=True)
-        self._lock = open(self.directory / (JOURNAL_NAME + ".lock"), "a")
+        self._lock = self._fh = None
+        lock_path = self.directory / (JOURNAL_NAME + ".lock")
+        self._check_stale(read(self.path, repair=False), fresh)
+        if os.path.lexists(lock_path) and not lock_path.is_file():
+            raise ResultsError(f"{lock_path}: is not a regular file (the evaluation's lock)")
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            self._lock = open(lock_path, "a")
+        except OSError as exc:
+            raise ResultsError(f"{lock_path}: cannot be created ({exc.strerror})") from None
         try:
             fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             self._lock.close()
+            self._lock = None
             raise ResultsError(f"{self.directory}: another evaluation is writing these results") from None
         try:
-            records = read(self.path)
-            stale = sorted({r["hash"] for r in records if r["hash"] != scenario_hash})
-            if stale and not fresh:
-                raise ResultsError(
-                    f"{self.path}: holds {len(records)} runs of a different version of this scenario (hash "
-                    f"{', '.join(stale)}; now {scenario_hash}); pass --fresh to set them aside, or --results DIR")
+            records = read(self.path)          # again, under the lock: cuts a torn last line
+            stale = self._check_stale(records, fresh)
             if stale:
                 self.path.rename(self.directory / f"runs.stale-{stale[0]}.jsonl")
                 records = []
             self.records: dict[str, dict] = {}
             for r in records:
                 self.records.setdefault(r["key"], r)   # a key recorded twice keeps its first result
+            self._fh = open(self.path, "ab")
+        except OSError as exc:
+            self.close()
+            raise ResultsError(f"{self.path}: cannot be opened for appending ({exc.strerror})") from None
         except BaseException:
             self.close()
             raise
-        self._fh = open(self.path, "ab")
+
+    def _check_stale(self, records: list[dict], fresh: bool) -> list[str]:
+        """The other hashes in ``records``; refused unless ``fresh``."""
+        stale = sorted({r["hash"] for r in records if r["hash"] != self.hash})
+        if stale and not fresh:
+            raise ResultsError(
+                f"{self.path}: holds {len(records)} runs of a different version of this scenario (hash "
+                f"{', '.join(stale)}; now {self.hash}); pass --fresh to set them aside, or --results DIR")
+        return stale
 
     def __enter__(self) -> "Journal":
         return self
@@ -109,7 +153,10 @@ class Journal:
 
     def close(self) -> None:
         if getattr(self, "_fh", None) is not None:
-            self._fh.close()
+            try:
+                self._fh.close()
+            except OSError:        # a failed flush of the last append: that run is simply done again
+                pass
             self._fh = None
         if self._lock is not None:
             fcntl.flock(self._lock, fcntl.LOCK_UN)
@@ -120,10 +167,16 @@ class Journal:
         return key in self.records
 
     def append(self, key: str, rows: list[dict]) -> None:
-        """Record one finished run durably (one write, flush, fsync)."""
+        """Record one finished run durably (one write, flush, fsync). A write the file system refuses (full
+        disk, read-only) is a ``ResultsError``; the runs recorded before it are kept, and a partly written
+        line is a torn last line that the next start cuts."""
         rec = {"key": key, "hash": self.hash, "rows": [{k: _plain(v) for k, v in row.items()} for row in rows]}
         line = json.dumps(rec, separators=(",", ":")) + "\n"
-        self._fh.write(line.encode())
-        self._fh.flush()
-        os.fsync(self._fh.fileno())
+        try:
+            self._fh.write(line.encode())
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
+        except OSError as exc:
+            raise ResultsError(f"{self.path}: cannot record run {key} ({exc.strerror}); the runs recorded before "
+                               f"it are kept, re-run to resume") from None
         self.records[key] = rec

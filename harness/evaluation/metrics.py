@@ -168,6 +168,14 @@ def heading_tilt_errors(est_quat_cam: np.ndarray, true_quat_cam: np.ndarray, cam
     rotation about world z: ``heading_err_deg`` is the angle of the twist (the yaw error, in [0, 180]),
     ``tilt_err_deg`` that of the swing (the error of the body's up axis).
     """
+    twist_angle, swing_angle = _twist_swing(est_quat_cam, true_quat_cam, camera_rot)
+    return {"heading_err_deg": float(np.rad2deg(np.mean(twist_angle))),
+            "tilt_err_deg": float(np.rad2deg(np.mean(swing_angle)))}
+
+
+def _twist_swing(est_quat_cam: np.ndarray, true_quat_cam: np.ndarray, camera_rot: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame, the twist (about world z) and swing angles (rad) of ``D = R_est R_true^T`` (world frame)."""
     cam = from_matrix(np.asarray(camera_rot, dtype=float))
     est_w = multiply(cam, np.asarray(est_quat_cam, dtype=float))
     true_w = multiply(cam, np.asarray(true_quat_cam, dtype=float))
@@ -176,10 +184,26 @@ def heading_tilt_errors(est_quat_cam: np.ndarray, true_quat_cam: np.ndarray, cam
     # and taken as no twist). The swing D twist^-1 then has scalar part hypot(w, z) and vector norm
     # hypot(x, y); atan2 keeps both angles accurate near zero.
     w, x, y, z = np.moveaxis(rel, -1, 0)
-    twist_angle = 2.0 * np.arctan2(np.abs(z), np.abs(w))
-    swing_angle = 2.0 * np.arctan2(np.hypot(x, y), np.hypot(w, z))
-    return {"heading_err_deg": float(np.rad2deg(np.mean(twist_angle))),
-            "tilt_err_deg": float(np.rad2deg(np.mean(swing_angle)))}
+    return 2.0 * np.arctan2(np.abs(z), np.abs(w)), 2.0 * np.arctan2(np.hypot(x, y), np.hypot(w, z))
+
+
+def heading_twin_error(est_quat_cam: np.ndarray, true_quat_cam: np.ndarray, camera_rot: np.ndarray) -> dict:
+    """``heading_err_twin_deg``: the heading error up to the exact twin, degrees averaged over frames.
+
+    The twin of the true orientation, ``S R_true S_b`` (``harness.engine.track.twin`` without gravity: depth
+    reflected through the camera's image plane, the body mirrored left to right), gives the same unlabeled
+    points under orthographic projection: no flow tells the two apart. Per frame the error is the smaller
+    of the heading error (``heading_tilt_errors``) against the truth and against its twin; seen from the
+    side the two coincide, from the front or back they face opposite ways. So ``heading_err_deg`` minus this
+    is what the twin ambiguity costs (the information limit), and what remains is the tracker's own error.
+    Quaternions ``(T, 4)`` wxyz in the camera frame, ``camera_rot`` ``(T, 3, 3)`` world from camera.
+    """
+    from harness.engine.track import twin
+
+    true_quat_cam = np.asarray(true_quat_cam, dtype=float).reshape(-1, 4)
+    direct, _ = _twist_swing(est_quat_cam, true_quat_cam, camera_rot)
+    mirrored, _ = _twist_swing(est_quat_cam, twin(true_quat_cam), camera_rot)
+    return {"heading_err_twin_deg": float(np.rad2deg(np.mean(np.minimum(direct, mirrored))))}
 
 
 def reprojection_px(body: BodyModel, est_qpos_cam: np.ndarray, markers: SurfacePoints, intrinsics: Intrinsics,

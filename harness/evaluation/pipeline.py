@@ -33,6 +33,7 @@ from harness.evaluation.cache import cached, path_for_key
 from harness.evaluation.methods import METHODS, EngineRuns, RunInputs, score, segment_list
 from harness.evaluation.runner import RunError, RunSpec
 from harness.evaluation.scenario import Scenario, scene_spec, tracker_config
+from harness.evaluation.viewing import viewing_columns
 from harness.motion import Motion
 from harness.motion.performer import CYCLIC, demonstrations, training_set
 from harness.motion.stream import TRANSITION, Stream, capture_stream, procedural_stream
@@ -219,6 +220,7 @@ def run_one(run: RunSpec) -> list[dict]:
     common = {"class_true": run.test_class, "n_frames": len(obs), "mean_flows": float(obs.counts[1:].mean()),
               "self_occlusion": float(truth.self_fraction.mean()),
               "obstacle_occlusion": float(truth.obstacle_fraction.mean())}
+    common |= viewing_columns(inputs.scene, truth)         # where the camera stood: the spec the run drew
     if inputs.labels is not None:
         common["segments_true"] = segment_list(inputs.labels)
     engine = EngineRuns(inputs)

@@ -226,6 +226,43 @@ def plot_reliability(rel: pd.DataFrame, path: Path) -> bool:
     return True
 
 
+def plot_by_view(table: pd.DataFrame, path: Path) -> bool:
+    """Recognition and heading error against the viewing direction (``tables.by_view``: front, side, back of
+    the camera's azimuth from the subject's initial heading), one line per method, 95% intervals; the heading
+    error up to the twin dashed beside the plain one. False when there is nothing to draw."""
+    if not len(table):
+        return False
+    from harness.evaluation.viewing import VIEW_BINS
+
+    views = [v for v, _, _ in VIEW_BINS]
+    recognition = "correct" if (table["metric"] == "correct").any() else "frame_accuracy"
+    panels = [(recognition, (recognition,)), ("heading_err_deg", ("heading_err_deg", "heading_err_twin_deg"))]
+    panels = [(name, ms) for name, ms in panels if table["metric"].isin(ms).any()]
+    if not panels:
+        return False
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 3.6), squeeze=False)
+    for ax, (name, metrics) in zip(axes[0], panels):
+        for metric in metrics:
+            for method, g in table[table["metric"] == metric].groupby("method", sort=False):
+                g = g.set_index("view").reindex(views)
+                x = np.arange(len(views)) + (0.08 if metric.endswith("twin_deg") else 0.0)
+                mean, lo, hi = (g[c].to_numpy(float) for c in ("mean", "ci_lo", "ci_hi"))
+                twin = metric.endswith("twin_deg")
+                ax.errorbar(x, mean, yerr=[mean - lo, hi - mean], marker="o", capsize=3, color=_colour(method),
+                            ls="--" if twin else "-", mfc="white" if twin else None,
+                            label=f"{method}, up to the twin" if twin else method)
+        ax.set_xticks(range(len(views)), [f"{v}\n|az| {lo:g}-{hi:g} deg" for v, lo, hi in VIEW_BINS], fontsize=8)
+        ax.set_xlabel("where the camera stands (azimuth from the initial heading)")
+        ax.set_ylabel(LABELS.get(name, name))
+        if name in ("correct", "frame_accuracy"):
+            ax.set_ylim(-0.02, 1.02)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    _save(fig, path)
+    return True
+
+
 TRANSITION_COLOUR = (0.85, 0.85, 0.85)
 
 
@@ -304,6 +341,10 @@ def write_plots(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], class
             made.append(name)
     if "occluders.amount" in swept and plot_measured_occlusion(rows, out_dir / "plots/accuracy_vs_measured_occlusion.png"):
         made.append("plots/accuracy_vs_measured_occlusion.png")
+    from harness.evaluation.tables import by_view
+
+    if plot_by_view(by_view(rows, 1000), out_dir / "plots/by_view.png"):
+        made.append("plots/by_view.png")
     pooled = rows.assign(condition="all conditions")
     for (_, method), mat in confusion(pooled, classes).items():
         name = f"plots/confusion_{method}.png"

@@ -21,14 +21,15 @@ from pathlib import Path
 from typing import Literal
 
 import pandas as pd
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from harness import safe_yaml
 from harness.errors import HarnessError
-from harness.io import write_text_atomic
+from harness.io import read_input_bytes, write_text_atomic
 
 BASELINE_FILE = "metrics.json"
 TOLERANCE_FILE = "tolerances.yaml"
+MAX_FILE_BYTES = 16 * 2**20      # a baseline, tolerance or metrics file
 
 
 class RegressError(HarnessError):
@@ -51,14 +52,14 @@ class Tolerances(BaseModel):
 
 
 def load_tolerances(path: str | Path) -> dict[str, Tolerance]:
+    """The tolerance file, read like a scenario (``harness.safe_yaml``: bounded, duplicate keys refused); every
+    error is one line naming the file and, for YAML errors, the line."""
     path = Path(path)
     if not path.is_file():
         raise RegressError(f"{path}: no tolerance file")
+    raw = safe_yaml.load(path, RegressError, "tolerance", MAX_FILE_BYTES)
     try:
-        raw = yaml.safe_load(path.read_text())
         return Tolerances.model_validate(raw).metrics
-    except yaml.YAMLError as exc:
-        raise RegressError(f"{path}: not valid YAML ({exc})") from None
     except ValidationError as exc:
         err = exc.errors()[0]
         loc = ".".join(str(p) for p in err["loc"])
@@ -70,13 +71,28 @@ def load_baseline(path: str | Path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise RegressError(f"{path}: no stored baseline (create it with `harness rebaseline`)")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise RegressError(f"{path}: line {exc.lineno}: not valid JSON ({exc.msg})") from None
+    data = _json(path, "baseline")
     if not isinstance(data, dict) or not isinstance(data.get("metrics"), dict):
         raise RegressError(f"{path}: expected an object with a 'metrics' mapping")
+    _numbers(data["metrics"], path)
     return data
+
+
+def _numbers(metrics: dict, path: Path) -> None:
+    for key, value in metrics.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise RegressError(f"{path}: metric {str(key)[:60]!r} must be a number")
+
+
+def _json(path: Path, kind: str):
+    """A JSON file's value; one-line ``RegressError`` for a file too large, not JSON, or nested too deeply."""
+    data = read_input_bytes(path, RegressError, kind, MAX_FILE_BYTES)
+    try:
+        return json.loads(data)
+    except json.JSONDecodeError as exc:
+        raise RegressError(f"{path}: line {exc.lineno}: not valid JSON ({exc.msg})") from None
+    except (ValueError, RecursionError):
+        raise RegressError(f"{path}: not valid JSON (not UTF-8, a malformed number or nested too deeply)") from None
 
 
 def _limit(tol: Tolerance, stored: float) -> tuple[float, str]:
@@ -137,7 +153,10 @@ def check(results_dir: str | Path, baseline_dir: str | Path) -> tuple[pd.DataFra
         raise RegressError(f"{now_path}: no current metrics (run the CI scenario first)")
     baseline = load_baseline(Path(baseline_dir) / BASELINE_FILE)
     tolerances = load_tolerances(Path(baseline_dir) / TOLERANCE_FILE)
-    now = json.loads(now_path.read_text())
+    now = _json(now_path, "metrics")
+    if not isinstance(now, dict):
+        raise RegressError(f"{now_path}: expected a mapping of metric names to numbers")
+    _numbers(now, now_path)
     return compare(baseline["metrics"], now, tolerances), baseline
 
 

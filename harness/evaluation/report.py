@@ -93,6 +93,7 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
             *_section_plots(figures, ("reliability",)),
             "(bins in `reliability.csv`; all conditions pooled, the number of runs written at each bin)\n",
         ]
+    parts += _view_section(figures)
     worst = tables["worst_runs"]
     if len(worst):
         parts += ["## The three worst runs of `full`\n",
@@ -153,6 +154,7 @@ def _stream_report(scenario: Scenario, results_dir: Path, rows: pd.DataFrame, ta
                         or Path(f).stem == "accuracy_vs_measured_occlusion")
     if swept_plots:
         parts += ["## Against the swept keys\n", *_section_plots(figures, swept_plots)]
+    parts += _view_section(figures)
     timelines = [f for f in figures if f.startswith("plots/timelines/")]
     if timelines:
         parts += ["## Timelines\n",
@@ -160,6 +162,19 @@ def _stream_report(scenario: Scenario, results_dir: Path, rows: pd.DataFrame, ta
                   "with its frame accuracy and F1@25.\n",
                   *[f"![{Path(f).stem}]({f})\n" for f in timelines]]
     return _finish(parts, scenario, tables, results_dir)
+
+
+def _view_section(figures: list[str]) -> list[str]:
+    """Recognition and heading error against where the camera stood (``plots/by_view.png``), if drawn."""
+    if "plots/by_view.png" not in figures:
+        return []
+    return ["## Against the viewpoint\n",
+            "Runs pooled over conditions by the camera's azimuth from the subject's initial heading "
+            "(`view_azimuth_deg` in `runs.csv`): front within 45 deg of the face, back within 45 deg of the back, side between. The "
+            "heading error up to the twin (dashed, `heading_err_twin_deg`) forgives the depth-reflected mirrored "
+            "pose that no flow can tell apart: the gap between the two lines is the information limit, what "
+            "remains is the tracker's own error (numbers in `by_view.csv`).\n",
+            *_section_plots(figures, ("by_view",))]
 
 
 def _video_name(run_key: str) -> str:

@@ -52,11 +52,22 @@ def reproduce_command(args: argparse.Namespace) -> int:
     from harness.motion.motion import Motion
     from harness.observation import Observation
 
+    from harness.engine.cli import MAX_DATABASE_BYTES
+    from harness.errors import EngineError
+    from harness.io import check_output_file, inspect_npz
+
     if not 0.5 <= args.scale <= 1.5:
         raise ReproduceError(f"--scale must be in [0.5, 1.5], got {args.scale}")
     if args.video is not None and Path(args.video).suffix.lower() not in (".mp4", ".gif"):
         raise ReproduceError(f"--video {args.video}: video files must end in .mp4 or .gif")
+    check_output_file(args.out)
+    if args.video is not None:
+        check_output_file(args.video, "--video")
+    if not 0 <= args.seed < 2**63:
+        raise ReproduceError(f"--seed must be in [0, 2**63), got {args.seed}")
+    config = TrackerConfig(particles=args.particles)
     obs = Observation.load(args.observation)
+    inspect_npz(args.database, EngineError, "database", MAX_DATABASE_BYTES)
     db = MotionDatabase.load(args.database)
     truth = None
     if args.truth is not None:
@@ -68,7 +79,9 @@ def reproduce_command(args: argparse.Namespace) -> int:
     nominal = BodyModel.load()
     body = nominal if args.scale == 1.0 else nominal.scaled(np.where(np.arange(nominal.model.nbody) > 0,
                                                                       args.scale, 1.0))
-    est = Tracker(db, nominal, TrackerConfig(particles=args.particles), np.random.default_rng(args.seed)).run(obs)
+    if obs.counts.sum() == 0:
+        raise ReproduceError(f"{args.observation}: no frame has any flow: nothing to recognise")
+    est = Tracker(db, nominal, config, np.random.default_rng(args.seed)).run(obs)
     label = est.predicted
     world = recovered_world(nominal, est.qpos, None if obs.gravity is None else obs.gravity[0])
     repro = reproduce(db, body, label, state_path(db, est.joint_posterior, label), obs.fps,

@@ -49,15 +49,16 @@ def find_run(results_dir: Path, run_key: str):
     """The stored scenario of ``results_dir`` and the ``RunSpec`` of ``run_key`` in its plan."""
     from harness.evaluation.runner import plan
     from harness.evaluation.scenario import ScenarioError, parse_scenario, scenario_hash
+    from harness.io import read_input_bytes
 
     path = results_dir / "scenario.json"
     if not path.is_file():
         raise RunVideoError(f"{path}: no stored scenario (is {results_dir} a results directory of `harness "
                             f"evaluate`?)")
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(read_input_bytes(path, RunVideoError, "stored scenario", 16 * 2**20))
         scenario = parse_scenario(data["scenario"], str(path))
-    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError, RecursionError):     # JSON, UTF-8, digits, nesting
         raise RunVideoError(f"{path}: not a stored scenario") from None
     except ScenarioError as exc:
         raise RunVideoError(f"{path}: the stored scenario no longer validates ({exc})") from None
@@ -180,8 +181,13 @@ def run_video_command(args: argparse.Namespace) -> int:
     """Video of one evaluation run: camera image, flows, obstacles, true and estimated body, class posterior."""
     from harness.video import VideoError, write_video
 
+    from harness.io import check_output_file
+
     if Path(args.out).suffix.lower() not in (".mp4", ".gif"):
         raise VideoError(f"--out {args.out}: video files must end in .mp4 or .gif")
+    check_output_file(args.out)
+    if args.png:
+        check_output_file(args.png, "--png")
     frames, fps, summary = render_run(args.results_dir, args.run_key, args.method)
     if args.png:
         import cv2

@@ -13,7 +13,11 @@ on how many times the sweep was interrupted and resumed.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import os
+import threading
+import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -27,6 +31,7 @@ import pandas as pd
 from harness.errors import HarnessError
 from harness.evaluation.journal import Journal
 from harness.evaluation.journal import read as read_journal
+from harness.evaluation.results_dir import check as check_results_dir
 from harness.evaluation.scenario import MAX_RUNS, Scenario, conditions, scenario_hash
 from harness.io import write_text_atomic
 from harness.version import code_version
@@ -34,6 +39,7 @@ from harness.version import code_version
 RunFunction = Callable[["RunSpec"], list[dict]]
 IDENTITY_COLUMNS = ("run_key", "scenario", "condition", "repeat", "test_class", "test_demo", "seed")
 STREAM_CLASS = "stream"         # the test class of a stream run (its labels are per frame)
+SCHEDULER_TIMEOUT_S = 10.0      # a Dask scheduler that does not answer in this time is not there
 
 
 class RunError(HarnessError):
@@ -132,9 +138,10 @@ def plan(scenario: Scenario, cache_dir: str | Path) -> list[RunSpec]:
     code = code_version()
     for cond in conditions(scenario):
         motions = motions_under_test(cond.config)
-        if len(runs) + scenario.repeats * len(motions) > MAX_RUNS:
+        repeats = cond.config.repeats       # swept repeats: each condition runs its own number
+        if len(runs) + repeats * len(motions) > MAX_RUNS:
             raise RunError(f"{scenario.name}: the plan has more than {MAX_RUNS} runs: reduce repeats or the sweep")
-        for rep in range(scenario.repeats):
+        for rep in range(repeats):
             for cls, demo in motions:
                 runs.append(RunSpec(cond.config, cond.index, cond.label, cond.values, rep, cls, demo,
                                     derive_seed(scenario.seed, rep, cls, demo), str(cache_dir), code))
@@ -154,8 +161,11 @@ def _execute_local(todo: list[RunSpec], run_fn: RunFunction, jobs: int) -> Itera
         for run in todo:
             yield run, _call(run_fn, run)
         return
-    # spawn, not fork: MuJoCo, EGL and numba threads in the parent do not survive a fork reliably.
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
+    # spawn, not fork: MuJoCo, EGL and numba threads in the parent do not survive a fork reliably. Each worker
+    # watches its parent (``_watch_parent``): a pool whose parent was killed (SIGKILL leaves it no chance to
+    # shut the pool down) would otherwise wait on its queue forever, holding hundreds of MB per worker.
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn"), initializer=_watch_parent,
+                             initargs=(os.getpid(),)) as pool:
         pending = {pool.submit(run_fn, run): run for run in todo}
         try:
             while pending:
@@ -168,16 +178,47 @@ def _execute_local(todo: list[RunSpec], run_fn: RunFunction, jobs: int) -> Itera
                 fut.cancel()
 
 
-def _execute_dask(todo: list[RunSpec], run_fn: RunFunction, address: str) -> Iterable[tuple[RunSpec, Any]]:
+def connect(address: str, timeout_s: float | None = None):
+    """A Dask client of the scheduler at ``address``; ``RunError`` (one line) when dask is missing or the
+    scheduler does not answer within ``timeout_s`` (default ``SCHEDULER_TIMEOUT_S``). Called before the journal
+    is opened, so a wrong address writes nothing."""
     try:
-        from dask.distributed import Client, as_completed
+        from dask.distributed import Client
     except ImportError:
         raise RunError(f"--scheduler {address}: dask.distributed is not installed "
                        f"(pip install 'harness[dask]')") from None
-    with Client(address) as client:
-        futures = {client.submit(run_fn, run, key=f"run-{run.key}-{run.seed}", pure=False): run for run in todo}
-        for fut in as_completed(list(futures)):
-            yield futures[fut], _call(lambda _: fut.result(), futures[fut])
+    timeout = SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s
+    try:
+        return Client(address, timeout=f"{timeout}s")
+    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        why = " ".join(str(exc).split())[:160] or type(exc).__name__
+        raise RunError(f"--scheduler {address}: no scheduler answered within {timeout:g} s ({why})") from None
+
+
+PARENT_POLL_S = 0.5     # how often a worker looks for its parent (a killed run's workers exit within this)
+
+
+def _watch_parent(parent: int) -> None:
+    """In a worker: a daemon thread that ends the process as soon as its parent ``parent`` (pid) is gone.
+
+    A process whose parent dies is re-parented (to init or a subreaper), so ``os.getppid`` changes; the
+    check runs while a run computes too (numpy and the engine's kernels release the interpreter's lock often),
+    so the worker exits within about ``PARENT_POLL_S`` of the parent's death, mid-run or idle. The journal is
+    written by the parent only, so nothing a worker holds is lost: its run is done again on resume."""
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="watch-parent", daemon=True).start()
+
+
+def _execute_dask(todo: list[RunSpec], run_fn: RunFunction, client) -> Iterable[tuple[RunSpec, Any]]:
+    from dask.distributed import as_completed
+
+    futures = {client.submit(run_fn, run, key=f"run-{run.key}-{run.seed}", pure=False): run for run in todo}
+    for fut in as_completed(list(futures)):
+        yield futures[fut], _call(lambda _: fut.result(), futures[fut])
 
 
 def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunction, jobs: int = 1,
@@ -193,17 +234,20 @@ def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunctio
     """
     results_dir = Path(results_dir)
     cache_dir = Path(cache_dir) if cache_dir is not None else results_dir.parent / "cache"
+    check_results_dir(results_dir, cache_dir)
     digest = scenario_hash(scenario)
     runs = plan(scenario, cache_dir)
     if limit is not None:
         runs = runs[:max(0, int(limit))]
-    with Journal(results_dir, digest, fresh=fresh) as journal:
+    with contextlib.ExitStack() as stack:
+        client = stack.enter_context(connect(scheduler)) if scheduler else None
+        journal = stack.enter_context(Journal(results_dir, digest, fresh=fresh))
         write_text_atomic(results_dir / "scenario.json", _scenario_json(scenario, digest))
         todo = [r for r in runs if r.key not in journal]
         if todo:
             from tqdm import tqdm
 
-            finished = (_execute_dask(todo, run_fn, scheduler) if scheduler
+            finished = (_execute_dask(todo, run_fn, client) if client is not None
                         else _execute_local(todo, run_fn, jobs))
             bar = tqdm(total=len(todo), desc=scenario.name, unit="run", disable=not progress, leave=False)
             try:

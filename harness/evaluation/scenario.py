@@ -19,6 +19,7 @@ hand) and the size of the plan. The schema table in ``docs/evaluation.md`` is ``
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import hashlib
 import itertools
@@ -27,17 +28,19 @@ import math
 import os
 import re
 import typing
+from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, field_validator, model_validator
 
+from harness import safe_yaml
 from harness.engine import TrackerConfig
 from harness.errors import EngineError, HarnessError
+from harness.evaluation.limits import MAX_CONDITIONS, MAX_SWEEP_VALUES, LimitError, check_run
 from harness.evaluation.methods import default_methods, method_names
 from harness.motion.performer import CLASSES as PROCEDURAL_CLASSES
 from harness.scene.spec import (CameraSpec, MarkerSpec, ObservationSpec, OccluderGeom, OccluderSpec, SceneError,
@@ -47,6 +50,11 @@ from harness.version import code_version
 MOCAP_ENV = "HARNESS_MOCAP_DIR"
 MAX_RUNS = 100_000          # a plan beyond this is refused at load (at seconds per run it would take weeks)
 MAX_SCENARIO_BYTES = 1_000_000
+MAX_STREAM_PRIMITIVES = 20      # primitives per procedural test stream
+MAX_TRANSITION_S = 10.0
+_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+RESERVED_NAMES = ("cache", "baseline")   # --results/cache holds the database cache, results/baseline the
+                                         # regression baseline: a scenario of that name would write into them
 RANDOM = "random"
 
 
@@ -63,7 +71,7 @@ class DatabaseConfig(_Section):
 
     source: Literal["procedural", "capture"] = "procedural"
     capture_dir: str | None = None          # capture only; else --mocap-dir or $HARNESS_MOCAP_DIR
-    manifest: str = "MANIFEST.csv"          # capture only; relative to capture_dir
+    manifest: str = "MANIFEST.csv"          # capture only; a path inside capture_dir
     classes: tuple[str, ...] | None = None  # default: all procedural classes / the manifest's classes
     train_demos: int = Field(8, ge=1, le=1000)   # demonstrations per class (procedural)
     states: int = Field(20, ge=2, le=500)   # HMM states per primitive
@@ -71,6 +79,16 @@ class DatabaseConfig(_Section):
     fps: float = Field(30.0, gt=0, le=1000)  # frames per second of training and test motions
     with_captures: bool = False             # procedural, test.split captures: also train on the capture demos
                                             # of every subject but the test motion's
+
+    @field_validator("manifest")
+    @classmethod
+    def _manifest_inside(cls, v):
+        from harness.motion.captures import relative_path_problem
+
+        problem = relative_path_problem(v)
+        if problem:
+            raise ValueError(f"{problem} (got {_short(v)})")
+        return v
 
     @model_validator(mode="after")
     def _check_classes(self):
@@ -98,12 +116,13 @@ class StreamConfig(_Section):
     @model_validator(mode="after")
     def _check(self):
         lo, hi = self.primitives
-        if not 2 <= lo <= hi:
-            raise ValueError(f"primitives: must be [min, max] with 2 <= min <= max, got {list(self.primitives)}")
+        if not 2 <= lo <= hi <= MAX_STREAM_PRIMITIVES:
+            raise ValueError(f"primitives: must be [min, max] with 2 <= min <= max <= {MAX_STREAM_PRIMITIVES}, got "
+                             f"{list(self.primitives)}")
         t_lo, t_hi = self.transition_s
-        if not 0 < t_lo <= t_hi:
-            raise ValueError(f"transition_s: must be [min, max] seconds with 0 < min <= max, got "
-                             f"{list(self.transition_s)}")
+        if not 0 < t_lo <= t_hi <= MAX_TRANSITION_S:
+            raise ValueError(f"transition_s: must be [min, max] seconds with 0 < min <= max <= {MAX_TRANSITION_S:g}, "
+                             f"got {list(self.transition_s)}")
         if self.takes is not None and not self.takes:
             raise ValueError("takes: empty list")
         return self
@@ -230,7 +249,7 @@ EngineConfig = _engine_section()
 class Scenario(_Section):
     """A validated scenario; ``sweep`` maps dotted keys to the values each condition takes."""
 
-    name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$", max_length=100)     # also the results directory name
+    name: str = Field(max_length=100)        # also the results directory's name (``_one_component``)
     seed: int = Field(0, ge=0)
     repeats: int = Field(1, ge=1, le=MAX_RUNS)
     database: DatabaseConfig = DatabaseConfig()
@@ -243,6 +262,19 @@ class Scenario(_Section):
     engine: EngineConfig = EngineConfig()
     methods: tuple[str, ...] = Field(default_factory=default_methods)
     sweep: dict[str, list[Any]] = Field(default_factory=dict)
+
+    @field_validator("name")
+    @classmethod
+    def _one_component(cls, v):
+        # The results go to --results/<name>: one path component, neither hidden nor '.' or '..', so that
+        # nothing is written outside --results or into its cache.
+        if not _NAME.match(v):
+            raise ValueError(f"must be one path component of letters, digits, '_', '.' and '-', not starting with "
+                             f"'.' or '-' (got {_short(v)})")
+        if v in RESERVED_NAMES:
+            raise ValueError(f"{v!r} is reserved (results/{v} is not a scenario's directory; reserved: "
+                             f"{', '.join(RESERVED_NAMES)})")
+        return v
 
     @field_validator("methods")
     @classmethod
@@ -392,15 +424,33 @@ def _validate(raw: dict, where: str) -> Scenario:
 
 # --- the sweep grid ----------------------------------------------------------------------------------------
 
-def _set_dotted(raw: dict, key: str, value: Any) -> dict:
-    out = json.loads(json.dumps(raw))
+# Keys a sweep may not take: the capture set is resolved once per scenario (its directory, manifest and classes
+# are checked at load), and the scenario seed is what every condition's draws derive from (conditions share
+# their draws by design, and a swept value would collide with the run's `seed` column): repeats give
+# independent draws.
+UNSWEEPABLE = {"seed": "the scenario seed is shared by every condition (common random numbers); raise repeats for "
+                       "independent draws",
+               "database.capture_dir": "a capture set is resolved once per scenario",
+               "database.manifest": "a capture set is resolved once per scenario"}
+
+
+def _set_dotted(raw: dict, key: str, value: Any, where: str = "<scenario>") -> dict:
+    """A copy of ``raw`` (its ``sweep`` left out) with the dotted ``key`` set to ``value``."""
+    out = copy.deepcopy({k: v for k, v in raw.items() if k != "sweep"})
     node = out
     parts = key.split(".")
     for p in parts[:-1]:
         node = node.setdefault(p, {})
         if not isinstance(node, dict):
-            raise ScenarioError(f"sweep[{key!r}]: {p} is not a section")
+            raise ScenarioError(f"{where}: sweep[{key!r}]: {p} is not a section")
     node[parts[-1]] = value
+    return out
+
+
+def _apply(raw: dict, values: Iterable[tuple[str, Any]], where: str) -> dict:
+    out = {k: v for k, v in raw.items() if k != "sweep"}
+    for k, v in values:
+        out = _set_dotted(out, k, v, where)
     return out
 
 
@@ -412,120 +462,177 @@ def sweepable_keys() -> list[str]:
             keys += [f"{section}.{k}" for k in ann.model_fields]
         elif section not in ("name", "sweep"):
             keys.append(section)
-    return keys
+    return [k for k in keys if k not in UNSWEEPABLE]
 
 
-def _check_sweep(raw: dict, scenario: Scenario, where: str) -> None:
+def _check_sweep_shape(sweep: dict, where: str) -> None:
+    """Keys, list sizes, repeated values and the grid's size, before any value is validated (a grid of
+    millions of conditions is refused at once, not after validating each)."""
     valid = sweepable_keys()
-    for key, values in scenario.sweep.items():
+    for key, values in sweep.items():
+        if key in UNSWEEPABLE:
+            raise ScenarioError(f"{where}: sweep[{key!r}]: not sweepable: {UNSWEEPABLE[key]}")
         if key not in valid:
             raise ScenarioError(f"{where}: sweep[{key!r}]: unknown key (valid: {', '.join(valid)})")
         if len(values) == 0:
             raise ScenarioError(f"{where}: sweep[{key!r}]: empty list (give at least one value)")
-        for i, v in enumerate(values):
-            try:
-                Scenario.model_validate(_set_dotted(raw, key, v) | {"sweep": {}})
-            except ValidationError as exc:
-                _, msg = _first_error(exc)
-                raise ScenarioError(f"{where}: sweep[{key!r}][{i}]: {msg}") from None
-        if len({json.dumps(v, sort_keys=True) for v in values}) != len(values):
+        if len(values) > MAX_SWEEP_VALUES:
+            raise ScenarioError(f"{where}: sweep[{key!r}]: {len(values)} values, more than {MAX_SWEEP_VALUES}")
+    n = math.prod(len(v) for v in sweep.values())
+    if n > MAX_CONDITIONS:
+        sizes = " x ".join(str(len(v)) for v in sweep.values())
+        raise ScenarioError(f"{where}: sweep: {sizes} = {n} conditions, more than {MAX_CONDITIONS}")
+    for key, values in sweep.items():
+        try:
+            texts = [json.dumps(v, sort_keys=True) for v in values]
+        except (TypeError, ValueError):
+            raise ScenarioError(f"{where}: sweep[{key!r}]: values must be numbers, strings, lists or mappings "
+                                f"({_short(values)})") from None
+        if len(set(texts)) != len(texts):
             raise ScenarioError(f"{where}: sweep[{key!r}]: a value is listed twice ({_short(values)})")
 
 
-def _check_size(raw: dict, scenario: Scenario, where: str) -> None:
+def _under(path: str, key: str) -> bool:
+    return path == key or path.startswith(key + ".") or path.startswith(key + "[")
+
+
+def _check_conditions(raw: dict, sweep: dict, where: str) -> list[Scenario]:
+    """Every condition of the grid validated as written (the base with the condition's values), so that rules
+    between fields hold for each condition and not for the unswept base. An error in a swept value names the
+    value (``sweep['markers.count'][1]: ...``); one that holds for some conditions only names the first;
+    one of the base in every condition is the base's."""
+    keys = list(sweep)
+    combos = list(itertools.product(*(range(len(sweep[k])) for k in keys)))
+    out = []
+    for c, combo in enumerate(combos):
+        values = [(k, sweep[k][i]) for k, i in zip(keys, combo)]
+        try:
+            out.append(Scenario.model_validate(_apply(raw, values, where)))
+            continue
+        except ValidationError as exc:
+            path, msg = _first_error(exc)
+        for k, i in zip(keys, combo):
+            if _under(path, k):
+                rest = path[len(k):].lstrip(".")
+                raise ScenarioError(f"{where}: sweep[{k!r}][{i}]: {rest + ': ' if rest else ''}{msg}") from None
+        everywhere = True
+        for other in combos:
+            try:
+                Scenario.model_validate(_apply(raw, [(k, sweep[k][i]) for k, i in zip(keys, other)], where))
+                everywhere = False
+                break
+            except ValidationError as again:
+                if _first_error(again) != (path, msg):
+                    everywhere = False
+                    break
+        label = "" if everywhere else f" (condition {_label(values)})"
+        raise ScenarioError(f"{where}: {path}: {msg}{label}" if path else f"{where}: {msg}{label}")
+    return out
+
+
+def _label(values) -> str:
+    return ",".join(f"{k}={v}" for k, v in values) or "base"
+
+
+def _runs_per_condition(cfg: Scenario) -> int | None:
+    """Test motions of a condition when known at load (procedural and streams; captures: after resolving)."""
+    if cfg.test.stream is not None:
+        return len(cfg.test.stream.takes) if cfg.test.stream.takes is not None else cfg.test.stream.count
+    if cfg.database.source == "procedural" and cfg.test.split == "heldout":
+        return len(cfg.classes) * cfg.test.demos_per_class
+    return None
+
+
+def _check_size(configs: list[Scenario], where: str) -> None:
     """Refuse a plan of more than MAX_RUNS runs before building it (a huge sweep or repeat count would hang)."""
-    n_conditions = math.prod(len(v) for v in scenario.sweep.values())
-    repeats = max([scenario.repeats] + list(scenario.sweep.get("repeats", [])))
-    per_condition = 1
-    if scenario.test.stream is not None:
-        stream = scenario.test.stream
-        per_condition = len(stream.takes) if stream.takes is not None else stream.count
-    elif scenario.database.source == "procedural" and scenario.test.split == "heldout":
-        demos = max([scenario.test.demos_per_class] + list(scenario.sweep.get("test.demos_per_class", [])))
-        per_condition = len(scenario.classes) * demos
-    n = n_conditions * repeats * per_condition
+    n = sum(cfg.repeats * (_runs_per_condition(cfg) or 1) for cfg in configs)
     if n > MAX_RUNS:
-        raise ScenarioError(f"{where}: the plan has {n} runs ({n_conditions} conditions x {repeats} repeats x "
-                            f"{per_condition} test motions), more than {MAX_RUNS}: reduce repeats or the sweep")
+        raise ScenarioError(f"{where}: the plan has {n} runs ({len(configs)} conditions x repeats x test motions), "
+                            f"more than {MAX_RUNS}: reduce repeats or the sweep")
+
+
+def _check_limits(cond: Condition, where: str) -> None:
+    try:
+        check_run(cond.config)
+    except LimitError as exc:
+        label = "" if cond.label == "base" else f" (condition {cond.label})"
+        raise ScenarioError(f"{where}: {exc.key}: {exc}{label}") from None
+
+
+@lru_cache(maxsize=256)
+def _placement_error(cam: CameraSpec, occ: OccluderSpec, subject: SubjectSpec, every_azimuth: bool):
+    """``(key, why)`` of a camera that would stand where it cannot, or None (cached: a sweep's conditions share
+    their camera and obstacles)."""
+    from harness.scene.placement import check_camera_placement, check_obstacles_clear
+
+    azimuths = np.arange(0.0, 360.0, 1.0) if every_azimuth else np.array([float(cam.azimuth)])
+    try:
+        check_obstacles_clear(occ, subject)
+        check_camera_placement(cam, occ, subject, azimuths)
+    except SceneError as exc:
+        return exc.key, exc.why
+    return None
 
 
 def _check_placement(cond: Condition, where: str) -> None:
-    """Where the camera would stand, for every azimuth it can take (decidable cases only; see
-    ``harness.scene.placement``)."""
-    from harness.scene.placement import check_camera_placement
-
+    """Where the camera would stand, for every azimuth it can take, and whether an obstacle given by hand
+    encloses the subject (decidable cases only; see ``harness.scene.placement``)."""
     cfg = cond.config
     cam = cfg.camera
-    if cam.azimuth == RANDOM or (cam.motion == "orbit" and cam.orbit_rate != 0.0):
-        azimuths = np.arange(0.0, 360.0, 1.0)
-    else:
-        azimuths = np.array([float(cam.azimuth)])
-    try:
-        check_camera_placement(to_spec(cam), to_spec(cfg.occluders), to_spec(cfg.subject), azimuths)
-    except SceneError as exc:
+    every = cam.azimuth == RANDOM or (cam.motion == "orbit" and cam.orbit_rate != 0.0)
+    error = _placement_error(to_spec(cam), to_spec(cfg.occluders), to_spec(cfg.subject), every)
+    if error is not None:
         label = "" if cond.label == "base" else f" (condition {cond.label})"
-        raise ScenarioError(f"{where}: {exc.key}: {exc.why}{label}") from None
+        raise ScenarioError(f"{where}: {error[0]}: {error[1]}{label}")
 
 
 def parse_scenario(raw: Any, where: str = "<scenario>") -> Scenario:
-    """Validate a scenario given as a mapping (``where`` names its source in errors)."""
+    """Validate a scenario given as a mapping (``where`` names its source in errors).
+
+    With a sweep, the returned scenario's sections hold the first condition's values (the base with every
+    swept key at its first value) and ``sweep`` the grid: the unswept value of a swept key is never used, so
+    it need not be valid with the rest (``occluders.amount: 0.4`` beside a swept preset)."""
     if not isinstance(raw, dict):
         raise ScenarioError(f"{where}: a scenario must be a mapping of keys to values, got {type(raw).__name__}")
     sweep = raw.get("sweep")
     if sweep is not None and not isinstance(sweep, dict):
         raise ScenarioError(f"{where}: sweep: must map dotted keys to lists of values, got {_short(sweep)}")
     for key, values in (sweep or {}).items():
+        if not isinstance(key, str):
+            raise ScenarioError(f"{where}: sweep: keys must be dotted names, got {_short(key)}")
         if not isinstance(values, list):
             raise ScenarioError(f"{where}: sweep[{key!r}]: must be a list of values, got {_short(values)}")
-    scenario = _validate(raw, where)
-    _check_sweep(raw, scenario, where)
-    _check_size(raw, scenario, where)
-    for cond in conditions(scenario):
+    sweep = sweep or {}
+    if not sweep:
+        scenario = _validate(raw, where)
+    else:
+        _check_sweep_shape(sweep, where)
+        first = _apply(raw, [(k, v[0]) for k, v in sweep.items()], where)
+        _check_conditions(raw, sweep, where)
+        scenario = _validate(first | {"sweep": sweep}, where)
+    conds = conditions(scenario)
+    _check_size([c.config for c in conds], where)
+    for cond in conds:
         _check_placement(cond, where)
+        _check_limits(cond, where)
     return scenario
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario YAML file; ``ScenarioError`` names the file and the key path."""
-    path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: no such scenario file") from None
-    except IsADirectoryError:
-        raise ScenarioError(f"{path}: is a directory, not a scenario file") from None
-    except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read ({exc.strerror})") from None
-    if len(data) > MAX_SCENARIO_BYTES:
-        raise ScenarioError(f"{path}: {len(data)} bytes is too large for a scenario (at most {MAX_SCENARIO_BYTES})")
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ScenarioError(f"{path}: not a text file (byte {exc.start} is not UTF-8)") from None
-    if "\x00" in text:
-        raise ScenarioError(f"{path}: not a text file (it contains NUL bytes)")
-    try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = f" line {mark.line + 1}" if mark is not None else ""
-        raise ScenarioError(f"{path}:{line} not valid YAML ({getattr(exc, 'problem', None) or type(exc).__name__})"
-                            ) from None
-    except RecursionError:
-        raise ScenarioError(f"{path}: not valid YAML (nested too deeply)") from None
+    """Read and validate a scenario YAML file; ``ScenarioError`` names the file and the key path. The file's
+    size and kind are checked before it is read, and the YAML is read with ``harness.safe_yaml`` (aliases
+    bounded, duplicate keys and oversized integers refused)."""
+    raw = safe_yaml.load(path, ScenarioError, "scenario", MAX_SCENARIO_BYTES)
     return parse_scenario(raw if raw is not None else {}, str(path))
 
 
 def conditions(scenario: Scenario) -> list[Condition]:
     """The Cartesian product of the sweep, in the order the keys and values are written (last key fastest)."""
     base = scenario.model_dump(mode="json")
-    base["sweep"] = {}
     keys = list(scenario.sweep)
     out = []
     for i, combo in enumerate(itertools.product(*(scenario.sweep[k] for k in keys))):
-        raw = base
-        for k, v in zip(keys, combo):
-            raw = _set_dotted(raw, k, v)
+        raw = _apply(base, zip(keys, combo), scenario.name)
         out.append(Condition(i, tuple(zip(keys, combo)), Scenario.model_validate(raw)))
     return out
 
@@ -540,49 +647,69 @@ def scenario_hash(scenario: Scenario) -> str:
 
 # --- capture sets ------------------------------------------------------------------------------------------
 
-def resolve_mocap_dir(scenario: Scenario, override: str | Path | None = None) -> Path:
-    """The capture directory: ``--mocap-dir`` beats ``database.capture_dir`` beats ``$HARNESS_MOCAP_DIR``."""
+def resolve_mocap_dir(scenario: Scenario, override: str | Path | None = None, where: str | None = None) -> Path:
+    """The capture directory: ``--mocap-dir`` beats ``database.capture_dir`` beats ``$HARNESS_MOCAP_DIR``;
+    its manifest must be a regular file inside it once symbolic links are followed. ``where`` names the
+    scenario file in errors (default: the scenario's name)."""
+    from harness.motion.captures import CaptureSetError, inside
+
+    where = where or scenario.name
     chosen = override or scenario.database.capture_dir or os.environ.get(MOCAP_ENV)
     if not chosen:
-        raise ScenarioError(f"{scenario.name}: database.capture_dir: not set (give --mocap-dir DIR, "
+        raise ScenarioError(f"{where}: database.capture_dir: not set (give --mocap-dir DIR, "
                             f"database.capture_dir or ${MOCAP_ENV})")
     path = Path(chosen).expanduser().resolve()
-    if not (path / scenario.database.manifest).is_file():
-        raise ScenarioError(f"{scenario.name}: database.manifest: {path / scenario.database.manifest} not found")
+    if not path.is_dir():
+        raise ScenarioError(f"{where}: database.capture_dir: {path} is not a directory")
+    try:
+        inside(path, scenario.database.manifest, "database.manifest")
+    except CaptureSetError as exc:
+        raise ScenarioError(f"{where}: {exc}") from None
     return path
 
 
-def resolve_capture(scenario: Scenario, mocap_dir: str | Path | None = None) -> Scenario:
-    """Fix a capture scenario's directory and classes (default: the manifest's), checking listed classes.
+def resolve_capture(scenario: Scenario, mocap_dir: str | Path | None = None, where: str | None = None
+                    ) -> Scenario:
+    """Fix a capture scenario's directory and classes (default: the manifest's), checking listed classes,
+    swept ones included, and that every manifest row's file is inside the directory (before any work).
 
     A procedural database tested on captures (``test.split: captures``) keeps its classes; every manifest
-    class must be one of them."""
-    from harness.motion.captures import read_manifest
+    class must be one of them. ``where`` names the scenario file in errors (default: its name)."""
+    from harness.motion.captures import CaptureSetError, check_rows, read_manifest
 
     if scenario.database.source != "capture" and scenario.test.split != "captures":
         return scenario
-    root = resolve_mocap_dir(scenario, mocap_dir)
-    rows = read_manifest(root / scenario.database.manifest)
+    where = where or scenario.name
+    root = resolve_mocap_dir(scenario, mocap_dir, where)
+    try:
+        rows = read_manifest(root / scenario.database.manifest)
+        check_rows(root, rows)
+    except CaptureSetError as exc:
+        raise ScenarioError(f"{where}: {exc}") from None
     present = sorted({r.label for r in rows})
     if scenario.database.source == "procedural":
-        for c in present:
-            if c not in scenario.classes:
-                raise ScenarioError(f"{scenario.name}: database.classes: the capture class {c!r} is not in the "
-                                    f"database (classes: {', '.join(scenario.classes)})")
+        for cond in conditions(scenario):
+            label = "" if cond.label == "base" else f" (condition {cond.label})"
+            for c in present:
+                if c not in cond.config.classes:
+                    raise ScenarioError(f"{where}: database.classes: the capture class {c!r} is not in the "
+                                        f"database (classes: {', '.join(cond.config.classes)}){label}")
         db = scenario.database.model_copy(update={"capture_dir": str(root)})
         return scenario.model_copy(update={"database": db})
+    for cond in conditions(scenario):
+        label = "" if cond.label == "base" else f" (condition {cond.label})"
+        for i, c in enumerate(cond.config.database.classes or ()):
+            if c not in present:
+                raise ScenarioError(f"{where}: database.classes[{i}]: unknown class {c!r} "
+                                    f"(valid: {', '.join(present)}){label}")
+        stream = cond.config.test.stream
+        if stream is not None:
+            takes = sorted({Path(r.file).stem for r in rows})
+            for i, take in enumerate(stream.takes or ()):
+                if take not in takes:
+                    raise ScenarioError(f"{where}: test.stream.takes[{i}]: no manifest row of take {take!r} "
+                                        f"(takes: {', '.join(takes)}){label}")
     classes = scenario.database.classes or tuple(present)
-    for i, c in enumerate(classes):
-        if c not in present:
-            raise ScenarioError(f"{scenario.name}: database.classes[{i}]: unknown class {c!r} "
-                                f"(valid: {', '.join(present)})")
-    stream = scenario.test.stream
-    if stream is not None:
-        takes = sorted({Path(r.file).stem for r in rows})
-        for i, take in enumerate(stream.takes or ()):
-            if take not in takes:
-                raise ScenarioError(f"{scenario.name}: test.stream.takes[{i}]: no manifest row of take {take!r} "
-                                    f"(takes: {', '.join(takes)})")
     db = scenario.database.model_copy(update={"capture_dir": str(root), "classes": tuple(classes)})
     return scenario.model_copy(update={"database": db})
 

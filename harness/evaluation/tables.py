@@ -26,7 +26,7 @@ STREAM = ("edit_score", "f1_10", "f1_25", "f1_50", "boundary_delay_s")      # wi
 REPRODUCTION = ("repro_dtw_deg", "repro_dtw_mm", "mean_dtw_deg", "mean_dtw_mm", "repro_beats_mean")
 RECOVERY = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", "pa_mpjpe_mm", "pa_mpjpe17_mm",
             "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m", "base_rot_err_deg", "heading_err_deg",
-            "tilt_err_deg", "reproj_px")
+            "tilt_err_deg", "reproj_px", "heading_err_twin_deg")
 SCENE = ("self_occlusion", "obstacle_occlusion", "n_frames", "mean_flows")
 TIMING = ("ms_per_frame",)
 METRICS = RECOGNITION + STREAM + RECOVERY + REPRODUCTION + SCENE + TIMING
@@ -243,10 +243,49 @@ def worst_runs(rows: pd.DataFrame, method: str = "full", n: int = 3) -> pd.DataF
     return worst[[c for c in cols if c in worst]].reset_index(drop=True)
 
 
+VIEW_METRICS = ("correct", "frame_accuracy", "heading_err_deg", "heading_err_twin_deg")
+
+
+def by_view(rows: pd.DataFrame, n_boot: int = N_BOOT, seed: int = 0) -> pd.DataFrame:
+    """Long table of recognition and heading error against the viewing direction, all conditions pooled:
+    view (``viewing.VIEW_BINS`` of ``|view_azimuth_deg|``: front, side, back), method, metric, n, mean, 95%
+    bootstrap interval (seeded per cell as in ``summary``); a method's ``given`` columns (the base pose handed to
+    ``gt_base``) are left out. Empty for rows without ``view_azimuth_deg``."""
+    from harness.evaluation.viewing import VIEW_BINS, view_bin
+
+    cols = ["view", "method", "metric", "n", "mean", "ci_lo", "ci_hi"]
+    if "view_azimuth_deg" not in rows or not len(rows):
+        return pd.DataFrame(columns=cols)
+    views = view_bin(pd.to_numeric(rows["view_azimuth_deg"], errors="coerce").to_numpy(float))
+    out = []
+    for view, _, _ in VIEW_BINS:
+        for method, g in rows[views == view].groupby("method", sort=False):
+            given = METHODS[method].given if method in METHODS else ()
+            for metric in VIEW_METRICS:
+                if metric not in g or metric in given or (metric == "frame_accuracy" and "correct" in g
+                                                          and not is_stream(g)):
+                    continue
+                x = pd.to_numeric(g[metric], errors="coerce").to_numpy(dtype=float)
+                x = x[np.isfinite(x)]
+                if not len(x):
+                    continue
+                rng = np.random.default_rng(np.random.SeedSequence(
+                    [seed, int(stable_hash(["view", view, method, metric])[:8], 16)]))
+                lo, hi = bootstrap_ci(x, rng, n_boot)
+                out.append({"view": view, "method": method, "metric": metric, "n": len(x),
+                            "mean": float(np.mean(x)), "ci_lo": lo, "ci_hi": hi})
+    table = pd.DataFrame(out, columns=cols)
+    if len(table):
+        rank = {v: i for i, (v, _, _) in enumerate(VIEW_BINS)}
+        table = table.assign(_v=table["view"].map(rank), _m=table["method"].map(_method_rank)).sort_values(
+            ["_m", "metric", "_v"], kind="stable").drop(columns=["_v", "_m"]).reset_index(drop=True)
+    return table
+
+
 def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str],
                  n_boot: int = N_BOOT, seed: int = 0) -> dict[str, pd.DataFrame]:
     """Write ``summary``, ``headline``, ``per_class``, ``confusion``, ``paired_tests``, ``accuracy_over_time``,
-    ``worst_runs``, ``calibration`` and ``reliability`` as CSV and Markdown,
+    ``worst_runs``, ``calibration``, ``reliability`` and ``by_view`` as CSV and Markdown,
     and ``metrics.json`` (pooled metrics), under ``out_dir``. Returns the tables by name."""
     out_dir = Path(out_dir)
     summ = summary(rows, swept, n_boot, seed)
@@ -259,7 +298,8 @@ def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], clas
               "per_class": per_class(rows), "paired_tests": paired_tests(rows),
               "timing": headline(timing, swept, TIMING),
               "accuracy_over_time": accuracy_over_time(rows), "worst_runs": worst_runs(rows),
-              "calibration": calibration_table(rows, swept), "reliability": reliability_table(rows)}
+              "calibration": calibration_table(rows, swept), "reliability": reliability_table(rows),
+              "by_view": by_view(rows, n_boot, seed)}
     conf = confusion(rows, classes)
     long = [{"condition": c, "method": m, "true": t, "predicted": p, "count": int(mat.loc[t, p])}
             for (c, m), mat in conf.items() for t in mat.index for p in mat.columns]

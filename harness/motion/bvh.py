@@ -190,7 +190,8 @@ def parse_bvh(text: str, path: str | Path = "<string>") -> BvhClip:
     lines = _Lines(Path(path), text)
     line, tok = lines.next("HIERARCHY")
     if tok != ["HIERARCHY"]:
-        raise lines.error(line, f"expected HIERARCHY, found {' '.join(tok)!r}")
+        # Not quoted: a file that is not BVH at all (a symlink to a system file) must not be echoed.
+        raise lines.error(line, "expected HIERARCHY on the first line: not a BVH file")
     line, tok = lines.next("ROOT")
     if tok[0] != "ROOT" or len(tok) < 2:
         raise lines.error(line, f"expected ROOT <name>, found {' '.join(tok)!r}")

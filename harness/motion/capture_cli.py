@@ -37,15 +37,20 @@ def _import_capture(args: argparse.Namespace) -> int:
     Rows whose residual exceeds the limits (``captures.RESIDUAL_LIMITS``) are written too, with a warning
     naming the row and its worst frames."""
     from harness.body import BodyModel
-    from harness.motion.captures import CaptureQualityWarning, quality_table, retarget_rows, write_quality_csv
+    from harness.io import check_output_dir, check_output_file
+    from harness.motion.captures import (CaptureQualityWarning, check_rows, quality_table, retarget_rows,
+                                         write_quality_csv)
     from harness.motion.skeletons import load_mapping
 
     body = BodyModel.load()
     directory = Path(args.directory)
     classes = [c.strip() for c in args.classes.split(",")] if args.classes else None
     rows = _manifest_rows(directory, args.manifest, classes)
+    check_rows(directory, rows)
+    out = check_output_dir(args.out)
+    if args.report:
+        check_output_file(args.report, "--report")
     mapping = load_mapping(args.mapping, body.body_names) if args.mapping else None
-    out = Path(args.out)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CaptureQualityWarning)
         results = retarget_rows(directory, rows, args.fps, body, mapping)
@@ -86,11 +91,12 @@ def _video_args(p: argparse.ArgumentParser) -> None:
 def _capture_video(args: argparse.Namespace) -> int:
     """Render a retargeted capture with the source skeleton's scaled joints drawn as spheres."""
     from harness.body import BodyModel
+    from harness.io import check_output_file, write_atomic
     from harness.motion.captures import file_positions, retarget_rows
-    from harness.io import write_atomic
     from harness.motion.retarget import retarget
     from harness.video import render_motion, write_video
 
+    check_output_file(args.out)
     body = BodyModel.load()
     if args.source.isdigit():
         directory = Path(args.dir)

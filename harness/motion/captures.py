@@ -20,7 +20,7 @@ import numpy as np
 
 from harness.body import BodyModel
 from harness.errors import HarnessError
-from harness.io import read_text, write_text_atomic
+from harness.io import MAX_TEXT_BYTES, check_input_file, read_text, write_text_atomic
 from harness.motion.asf_amc import asf_forward_kinematics, joint_names, load_amc, load_asf
 from harness.motion.bvh import CMU_BVH_UNIT_M, load_bvh
 from harness.motion.motion import Motion
@@ -34,6 +34,7 @@ FORMATS = ("bvh", "amc")
 RESIDUAL_LIMITS = {"mean": 0.03, "p95": 0.08, "max": 0.15}
 #: How many of a row's worst frames a quality table and a warning name.
 WORST_FRAMES = 5
+MAX_MANIFEST_BYTES = 16 * 2**20     # a manifest of a million rows is not one
 
 
 class CaptureSetError(HarnessError):
@@ -83,22 +84,56 @@ def _cell(value: str | None, limit: int = 40) -> str:
     return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
+def relative_path_problem(value: str) -> str | None:
+    """What keeps ``value`` from naming a file inside a directory by its text alone (empty, absolute, with a
+    ``..`` part or a NUL byte), or None. Symbolic links are checked on disk (``inside``)."""
+    path = PurePosixPath(value.replace("\\", "/"))
+    if not value or path.is_absolute() or PureWindowsPath(value).is_absolute() or ".." in path.parts \
+            or "\x00" in value:
+        return "must be a path relative to the capture directory, without '..'"
+    return None
+
+
 def _relative(value: str, where: str) -> str:
     """A file column: a relative path that stays inside the capture directory (no absolute path, no ``..``)."""
-    path = PurePosixPath(value.replace("\\", "/"))
-    if not value or path.is_absolute() or PureWindowsPath(value).is_absolute() or ".." in path.parts:
+    if relative_path_problem(value):
         raise CaptureSetError(f"{where}: {_cell(value)} must be a path relative to the capture directory, "
                               f"without '..'")
     return value
+
+
+def inside(directory: str | Path, relative: str, where: str) -> Path:
+    """``directory / relative`` with symbolic links followed, refused (``CaptureSetError`` naming ``where``)
+    unless it stays inside the directory (itself resolved) and is an existing regular file of at most
+    ``MAX_TEXT_BYTES``: a symlink to a system file, or a symlinked folder to ``/``, is never read."""
+    root = Path(directory).resolve()
+    target = (root / relative).resolve()
+    if not target.is_relative_to(root):
+        raise CaptureSetError(f"{where}: {_cell(relative)} leads outside the capture directory {root} "
+                              f"(a symbolic link)")
+    if not target.exists():
+        raise CaptureSetError(f"{where}: no such file {root / relative}")
+    try:
+        check_input_file(target, CaptureSetError, "capture", MAX_TEXT_BYTES)
+    except CaptureSetError as exc:
+        raise CaptureSetError(f"{where}: {exc}") from None
+    return target
+
+
+def check_rows(directory: str | Path, rows: list[CaptureRow]) -> None:
+    """Every row's file (and skeleton) exists inside ``directory`` as a regular file (``inside``): checked
+    before any row is read, so a bad row is refused before any work."""
+    for row in rows:
+        inside(directory, row.file, row.where("file"))
+        if row.skeleton:
+            inside(directory, row.skeleton, row.where("skeleton"))
 
 
 def read_manifest(path: str | Path, classes: list[str] | tuple[str, ...] | None = None) -> list[CaptureRow]:
     """Parse a manifest CSV (at least one row). ``classes``: when given, a row whose class is not among them is
     an error. File columns must stay inside the capture directory."""
     path = Path(path)
-    if not path.is_file():
-        raise CaptureSetError(f"{path}: no such manifest file")
-    text = read_text(path, CaptureSetError, "manifest")
+    text = read_text(path, CaptureSetError, "manifest", MAX_MANIFEST_BYTES)
     if "\x00" in text:
         raise CaptureSetError(f"{path}: not a CSV text file (it contains NUL bytes)")
     reader = csv.DictReader(io.StringIO(text, newline=""))
@@ -208,14 +243,10 @@ def _check_range(path: Path, start: int, end: int | None, n_frames: int) -> None
 def _row_positions(directory: Path, row: CaptureRow, files: dict
                    ) -> tuple[np.ndarray, tuple[str, ...], float, float]:
     """``file_positions`` of a manifest row, with errors that name the row and column."""
-    path = directory / row.file
-    if not path.is_file():
-        raise CaptureSetError(f"{row.where('file')}: no such file {path}")
+    path = inside(directory, row.file, row.where("file"))
     skeleton = None
     if row.format == "amc":
-        skeleton = directory / row.skeleton
-        if not skeleton.is_file():
-            raise CaptureSetError(f"{row.where('skeleton')}: no such file {skeleton}")
+        skeleton = inside(directory, row.skeleton, row.where("skeleton"))
     try:
         return file_positions(path, skeleton, row.start, row.end, row.fps, files, row.format)
     except RangeError as exc:
@@ -287,4 +318,5 @@ def load_capture_set(directory: str | Path, manifest: str | Path | None = None, 
     if not directory.is_dir():
         raise CaptureSetError(f"{directory}: no such capture directory")
     rows = read_manifest(Path(manifest) if manifest is not None else directory / MANIFEST_NAME, classes)
+    check_rows(directory, rows)
     return [m for m, _ in retarget_rows(directory, rows, fps, body, mapping)]

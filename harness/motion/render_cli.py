@@ -56,6 +56,13 @@ def _check(args: argparse.Namespace) -> None:
         raise RenderMotionError(f"--out {args.out}: video files must end in .mp4 or .gif")
     if args.sheet is not None and args.sheet.suffix.lower() != ".png":
         raise RenderMotionError(f"--sheet {args.sheet}: must end in .png")
+    from harness.io import check_output_dir, check_output_file
+
+    for flag in ("out", "sheet", "save_motion"):
+        if getattr(args, flag) is not None:
+            check_output_file(getattr(args, flag), f"--{flag.replace('_', '-')}")
+    if args.stills is not None:
+        check_output_dir(args.stills, "--stills")
 
 
 def _write_png(path: Path, image: np.ndarray) -> None:

@@ -16,11 +16,13 @@ dialect lists them, so that a joint nobody thought about is reported instead of 
 from __future__ import annotations
 
 import csv
+import io
 from pathlib import Path
 
 from harness.errors import HarnessError
 
 DIALECTS = ("asf", "bvh-motionbuilder", "bvh-3dsmax")
+MAX_MAPPING_BYTES = 1 << 20     # a joint-mapping file
 
 #: humanoid56 body or site -> source joint name per dialect (None: the dialect has no joint for it).
 ALIASES: dict[str, tuple[str | None, str | None, str | None]] = {
@@ -176,12 +178,9 @@ def load_mapping(path: str | Path, body_names: tuple[str, ...] | None = None) ->
         raise SkeletonMappingError(f"{path}: no such mapping file")
     out: dict[str, str | None] = {}
     if path.suffix.lower() in (".yaml", ".yml"):
-        import yaml
+        from harness import safe_yaml
 
-        try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as exc:
-            raise SkeletonMappingError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        data = safe_yaml.load(path, SkeletonMappingError, "mapping", MAX_MAPPING_BYTES)
         if not isinstance(data, dict):
             raise SkeletonMappingError(f"{path}: expected a mapping 'source joint: humanoid56 body'")
         for key, value in data.items():
@@ -189,15 +188,17 @@ def load_mapping(path: str | Path, body_names: tuple[str, ...] | None = None) ->
                 raise SkeletonMappingError(f"{path}: key {key!r}: body must be a name or ~, got {value!r}")
             out[str(key)] = value or None
     elif path.suffix.lower() == ".csv":
-        with path.open(newline="") as fh:
-            for lineno, row in enumerate(csv.reader(fh), start=1):
-                if not row or row[0].startswith("#"):
-                    continue
-                if lineno == 1 and [c.strip().lower() for c in row[:2]] == ["source", "body"]:
-                    continue
-                if len(row) > 2:
-                    raise SkeletonMappingError(f"{path}:{lineno}: expected 'joint,body', got {len(row)} columns")
-                out[row[0].strip()] = (row[1].strip() if len(row) > 1 else "") or None
+        from harness.io import read_text
+
+        text = read_text(path, SkeletonMappingError, "mapping", MAX_MAPPING_BYTES)
+        for lineno, row in enumerate(csv.reader(io.StringIO(text, newline="")), start=1):
+            if not row or row[0].startswith("#"):
+                continue
+            if lineno == 1 and [c.strip().lower() for c in row[:2]] == ["source", "body"]:
+                continue
+            if len(row) > 2:
+                raise SkeletonMappingError(f"{path}:{lineno}: expected 'joint,body', got {len(row)} columns")
+            out[row[0].strip()] = (row[1].strip() if len(row) > 1 else "") or None
     else:
         raise SkeletonMappingError(f"{path}: mapping files must be .yaml, .yml or .csv")
     if body_names is not None:

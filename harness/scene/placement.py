@@ -4,8 +4,10 @@ The camera's position relative to the look-at point is fixed by its spec (distan
 look-at height). Taking the subject standing in the zero pose at the look-at point, facing its initial
 heading, and the obstacles given by hand in its start frame with the start at the look-at point (exact for
 primitives performed in place; for travelling ones the scene checks again with the real motion), a camera
-is refused when it is at or below the floor, inside the standing subject, or inside an obstacle. Presets
-are placed between camera and subject by construction and are checked by the scene.
+is refused when it is at or below the floor, inside the standing subject, or inside an obstacle, and an
+obstacle when it holds a part of the standing subject (a box around the subject hides everything and gives a
+run with nothing seen). Presets are placed between camera and subject by construction and are checked by the
+scene.
 """
 
 from __future__ import annotations
@@ -72,3 +74,18 @@ def check_camera_placement(camera: CameraSpec, occluders: OccluderSpec, subject:
             raise SceneError("camera inside an obstacle", f"occluders.geoms[{k}]", occluders.geoms[k],
                              f"the camera (azimuth {a:g} deg, at {np.round(pos[np.argmax(inside)], 2).tolist()} m "
                              f"from the subject's start) is inside this obstacle")
+
+
+def check_obstacles_clear(occluders: OccluderSpec, subject: SubjectSpec) -> None:
+    """Raise ``SceneError`` if an obstacle of ``occluders.geoms`` holds the centre of one of the standing
+    subject's geoms (scaled by ``subject.scale``, at the start): the body would stand inside it."""
+    if not occluders.geoms:
+        return
+    types, sizes, centres, rots, names = _standing_geoms()
+    body = centres * subject.scale
+    for k, ob in enumerate(custom_obstacles(occluders.geoms, np.zeros(3), 0.0)):
+        inside = geom_sdf(ob.geom_type, ob.half, ob.to_local(body)) <= 0.0
+        if inside.any():
+            raise SceneError("obstacle around the subject", f"occluders.geoms[{k}]", occluders.geoms[k],
+                             f"this obstacle holds the standing subject's {names[int(np.argmax(inside))]!r} geom "
+                             f"(the body would stand inside it and nothing would be seen)")

@@ -28,6 +28,17 @@ def _args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frame", type=int, default=10, help="frame written by --png")
 
 
+def _check_outputs(args) -> None:
+    """Every output path writable and the seed usable, before the scene is simulated."""
+    from harness.io import check_output_file
+
+    for flag in ("out", "truth", "png"):
+        if getattr(args, flag, None):
+            check_output_file(getattr(args, flag), f"--{flag}")
+    if not 0 <= args.seed < 2**63:
+        raise HarnessError(f"--seed must be in [0, 2**63), got {args.seed}")
+
+
 def _motion(args):
     from harness.motion.motion import Motion
 
@@ -59,6 +70,7 @@ def simulate_command(args: argparse.Namespace) -> int:
     from harness.body import BodyModel
     from harness.scene.simulate import simulate
 
+    _check_outputs(args)
     obs, truth = simulate(_motion(args), _spec(args), np.random.default_rng(args.seed), BodyModel.load())
     obs.save(args.out)
     if args.truth:
@@ -76,6 +88,7 @@ def scene_video(args: argparse.Namespace) -> int:
     from harness.scene.simulate import build_setup, simulate
     from harness.video import draw_flows, write_video
 
+    _check_outputs(args)
     motion = _motion(args)
     spec = _spec(args)
     body = BodyModel.load()

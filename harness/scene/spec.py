@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, field
 
 from harness.errors import HarnessError
+from harness.pinhole import MAX_IMAGE_SIDE
 
 CAMERA_MOTIONS = ("static", "orbit", "follow")
 OBSERVATION_MODES = ("geometric", "rendered")
@@ -23,6 +24,12 @@ MAX_OCCLUSION_AMOUNT = 0.9      # a preset cannot be calibrated to hide everythi
 MAX_OUTLIERS = 10.0             # outlier flows per visible flow
 MAX_LIMB_SCALE = 0.15           # std of the per-segment length factor (factors clipped at +-3 std)
 SUBJECT_SCALE_RANGE = (0.5, 1.5)
+# Sizes a scene allocates by (markers x frames arrays, a rendered image) and distances beyond any room: each
+# ran before only to fail with a MemoryError or overflow (issue 23).
+MAX_MARKERS = 10_000
+MAX_DISTANCE_M = 1000.0         # camera distance, look-at height, obstacle centres
+MAX_OBSTACLE_M = 100.0          # obstacle half-sizes
+MAX_FOVY_DEG = 170.0            # a wider pinhole is degenerate (and no lens)
 # Presets are registered in harness.scene.occluders; listed here so that a spec can be validated
 # without building any geometry. A test checks that the two lists agree.
 OCCLUDER_PRESETS = ("none", "low_wall", "pillar", "boxes")
@@ -63,12 +70,13 @@ def _param(default, unit: str, values: str, meaning: str, **kw):
 class MarkerSpec:
     """``count`` unlabeled surface markers, placed area-uniformly by ``seed``."""
 
-    count: int = _param(100, "", "int >= 1", "random surface sites on the body (unlabeled features)")
+    count: int = _param(100, "", f"int in [1, {MAX_MARKERS}]", "random surface sites on the body (unlabeled features)")
     seed: int = _param(0, "", "int >= 0", "placement seed")
 
     def __post_init__(self):
         _require(_integer("markers.count", self.count) >= 1, "markers.count", self.count,
                  "at least one marker is needed")
+        _require(self.count <= MAX_MARKERS, "markers.count", self.count, f"at most {MAX_MARKERS} markers")
         _require(_integer("markers.seed", self.seed) >= 0, "markers.seed", self.seed, "must be >= 0")
 
 
@@ -79,15 +87,16 @@ class CameraSpec:
     The look-at point is the mean of the subject's base xy over the motion, at ``look_at_height``.
     """
 
-    distance: float = _param(4.0, "m", "> 0", "from the look-at point")
+    distance: float = _param(4.0, "m", f"(0, {MAX_DISTANCE_M:g}]", "from the look-at point")
     azimuth: float = _param(0.0, "deg", "finite", "about world z from the subject's initial heading (0: in front, "
                                                   "seeing the face; 90: on its left)")
     elevation: float = _param(10.0, "deg", "(-90, 90)", "above the look-at point (positive looks down)")
-    fovy: float = _param(45.0, "deg", "(0, 180)", "vertical field of view")
-    width: int = _param(640, "px", "int >= 16", "image width")
-    height: int = _param(480, "px", "int >= 16", "image height")
-    look_at_height: float = _param(0.9, "m", "finite", "height of the look-at point above the floor (0.9: the "
-                                                       "middle of the 1.765 m standing body)")
+    fovy: float = _param(45.0, "deg", f"(0, {MAX_FOVY_DEG:g}]", "vertical field of view")
+    width: int = _param(640, "px", f"int in [16, {MAX_IMAGE_SIDE}]", "image width")
+    height: int = _param(480, "px", f"int in [16, {MAX_IMAGE_SIDE}]", "image height")
+    look_at_height: float = _param(0.9, "m", f"[-{MAX_DISTANCE_M:g}, {MAX_DISTANCE_M:g}]",
+                                   "height of the look-at point above the floor (0.9: the middle of the 1.765 m "
+                                   "standing body)")
     motion: str = _param("static", "", ", ".join(CAMERA_MOTIONS),
                          "static; orbit: circles the look-at point at orbit_rate; follow: translates with the "
                          "subject's base xy, orientation fixed (a robot following the subject)")
@@ -96,15 +105,19 @@ class CameraSpec:
     def __post_init__(self):
         _require(_finite("camera.distance", self.distance) > 0.0, "camera.distance", self.distance,
                  "must be positive (metres)")
+        _require(self.distance <= MAX_DISTANCE_M, "camera.distance", self.distance,
+                 f"must be at most {MAX_DISTANCE_M:g} m")
         _finite("camera.azimuth", self.azimuth)
         _require(abs(_finite("camera.elevation", self.elevation)) < 90.0, "camera.elevation", self.elevation,
                  "must be in (-90, 90) degrees")
-        _require(0.0 < _finite("camera.fovy", self.fovy) < 180.0, "camera.fovy", self.fovy,
-                 "must be in (0, 180) degrees")
-        _require(_integer("camera.width", self.width) >= 16, "camera.width", self.width, "must be >= 16 pixels")
-        _require(_integer("camera.height", self.height) >= 16, "camera.height", self.height,
-                 "must be >= 16 pixels")
-        _finite("camera.look_at_height", self.look_at_height)
+        _require(0.0 < _finite("camera.fovy", self.fovy) <= MAX_FOVY_DEG, "camera.fovy", self.fovy,
+                 f"must be in (0, {MAX_FOVY_DEG:g}] degrees")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            _require(16 <= _integer(f"camera.{name}", value) <= MAX_IMAGE_SIDE, f"camera.{name}", value,
+                     f"must be in [16, {MAX_IMAGE_SIDE}] pixels")
+        _require(abs(_finite("camera.look_at_height", self.look_at_height)) <= MAX_DISTANCE_M,
+                 "camera.look_at_height", self.look_at_height, f"must be within +-{MAX_DISTANCE_M:g} m")
         _require(self.motion in CAMERA_MOTIONS, "camera.motion", self.motion,
                  f"must be one of {', '.join(CAMERA_MOTIONS)}")
         _finite("camera.orbit_rate", self.orbit_rate)
@@ -120,8 +133,10 @@ class OccluderGeom:
     """
 
     type: str = _param("box", "", ", ".join(OCCLUDER_GEOM_TYPES), "geom type")
-    pos: tuple[float, float, float] = _param((1.5, 0.0, 0.5), "m", "3 finite numbers", "centre, subject's start frame")
-    size: tuple[float, ...] = _param((0.5, 0.5, 0.5), "m", "3 (box) or 2 (cylinder, capsule) numbers > 0",
+    pos: tuple[float, float, float] = _param((1.5, 0.0, 0.5), "m", f"3 numbers within +-{MAX_DISTANCE_M:g}",
+                                             "centre, subject's start frame")
+    size: tuple[float, ...] = _param((0.5, 0.5, 0.5), "m",
+                                     f"3 (box) or 2 (cylinder, capsule) numbers in (0, {MAX_OBSTACLE_M:g}]",
                                      "half-sizes as in MuJoCo")
     yaw: float = _param(0.0, "deg", "finite", "rotation about z from the subject's initial heading")
 
@@ -131,12 +146,14 @@ class OccluderGeom:
         _require(isinstance(self.pos, (tuple, list)) and len(self.pos) == 3, "pos", self.pos,
                  "must be 3 numbers [x, y, z] (metres)")
         for v in self.pos:
-            _finite("pos", v)
+            _require(abs(_finite("pos", v)) <= MAX_DISTANCE_M, "pos", self.pos,
+                     f"every coordinate must be within +-{MAX_DISTANCE_M:g} m")
         n = 3 if self.type == "box" else 2
         _require(isinstance(self.size, (tuple, list)) and len(self.size) == n, "size", self.size,
                  f"a {self.type} takes {n} numbers")
         for v in self.size:
             _require(_finite("size", v) > 0.0, "size", self.size, "every size must be positive (metres)")
+            _require(v <= MAX_OBSTACLE_M, "size", self.size, f"every half-size must be at most {MAX_OBSTACLE_M:g} m")
         _finite("yaw", self.yaw)
 
 
