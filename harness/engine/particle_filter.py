@@ -134,6 +134,16 @@ class ParticleCloud:
         return w @ self.positions, geometry.weighted_mean(self.quats, w)
 
 
+def depth_guess(intr: Intrinsics, flows: np.ndarray, body_height: float) -> float | None:
+    """The depth (m) at which a body of ``body_height`` spans the flows' vertical extent (their 5-95%
+    percentile range of ``v``), or None with fewer than two flows."""
+    pts = np.asarray(flows, dtype=float).reshape(-1, 4)[:, :2]
+    if len(pts) < 2:
+        return None
+    v_lo, v_hi = np.percentile(pts[:, 1], [5, 95])
+    return intr.fy * body_height / max(v_hi - v_lo, 1.0)
+
+
 def initial_cloud(intr: Intrinsics, flows: np.ndarray, n: int, rng: np.random.Generator, *,
                   depth_range: tuple[float, float], world_from_camera: np.ndarray, body_height: float
                   ) -> ParticleCloud:
@@ -147,11 +157,10 @@ def initial_cloud(intr: Intrinsics, flows: np.ndarray, n: int, rng: np.random.Ge
     if len(pts) >= 2:
         u_lo, u_hi = np.percentile(pts[:, 0], [5, 95])
         v_lo, v_hi = np.percentile(pts[:, 1], [5, 95])
-        # The flows' height suggests a depth for a body of known height. It overestimates the depth when the
-        # body is partly hidden (a wall hiding the legs) or crouched, and underestimates it when the arms are
-        # raised, hence the asymmetric band.
         extent = max(v_hi - v_lo, 1.0)
-        guess = intr.fy * body_height / extent
+        guess = depth_guess(intr, flows, body_height)
+        # The guess overestimates the depth when the body is partly hidden (a wall hiding the legs) or
+        # crouched, and underestimates it when the arms are raised, hence the asymmetric band.
         near, far = max(lo, 0.35 * guess), min(hi, 1.3 * guess)
         if near >= far:
             near, far = lo, hi

@@ -35,12 +35,26 @@ class Recognizer:
         with np.errstate(divide="ignore"):
             self._log_start = np.log(start) - np.log(C)
             self._log_trans = np.log(db.transmat_)
+        self._log_start_shape = self._log_start.copy()
         self._log_prune = np.log(prune) if prune > 0 else -np.inf
         self.reset()
 
     def reset(self) -> None:
         self.log_alpha = self._log_start.copy()   # the prior of frame 0
         self._started = False
+
+    def restrict(self, primitives: np.ndarray) -> "Recognizer":
+        """Start anew believing only ``primitives`` (indices or a ``(C,)`` mask), each with its start
+        distribution and equal shares: the recursion of a track that hypothesises those primitives (the others
+        have zero probability and are never evaluated). Returns itself."""
+        keep = np.zeros(self._log_start.shape[0], dtype=bool)
+        keep[primitives] = True
+        if not keep.any():
+            raise EngineError("a belief must keep at least one primitive")
+        start = self._log_start - np.log(keep.mean())
+        self._log_start = np.where(keep[:, None], start, -np.inf)
+        self.reset()
+        return self
 
     def predict(self) -> None:
         """Move the posterior of the last frame through the transitions (the prior of the next frame)."""
@@ -54,7 +68,9 @@ class Recognizer:
         Pruning is relative to the best state *of the same primitive*: a primitive that is unlikely now must
         still follow its own states, or it could never come back when its distinctive phase (the flight of a
         jump) arrives."""
-        return self.log_alpha >= self.log_alpha.max(axis=1, keepdims=True) + self._log_prune
+        # A primitive outside the belief (-inf throughout, see ``restrict``) has no state worth evaluating.
+        return (self.log_alpha >= self.log_alpha.max(axis=1, keepdims=True) + self._log_prune) & np.isfinite(
+            self.log_alpha)
 
     def update(self, log_b: np.ndarray | None) -> float:
         """Fold in one frame's emission log-likelihoods ``(C, K)``; entries of inactive states are ignored.
@@ -86,7 +102,10 @@ class Recognizer:
     def state_posterior(self) -> np.ndarray:
         """``(C, K)`` posterior over states given each primitive (rows sum to one, even for a primitive whose
         own probability underflows)."""
-        p = np.exp(self.log_alpha - self.log_alpha.max(axis=1, keepdims=True))
+        top = self.log_alpha.max(axis=1, keepdims=True)
+        # A primitive outside the belief keeps its start distribution's shape (it is never read).
+        la = np.where(np.isfinite(top), self.log_alpha, self._log_start_shape)
+        p = np.exp(la - la.max(axis=1, keepdims=True))
         return p / p.sum(axis=1, keepdims=True)
 
     @property
