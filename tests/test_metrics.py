@@ -225,3 +225,13 @@ def test_log_p_true_is_the_log_posterior_clipped():
     post = np.array([[0.5, 0.5, 0.0], [0.7, 0.3, 0.0]])
     assert metrics.log_p_true(post, ["a", "b", "c"], "b") == pytest.approx(np.log(0.3))
     assert metrics.log_p_true(post, ["a", "b", "c"], "c") == pytest.approx(np.log(metrics.LOG_P_FLOOR))
+
+
+def test_heading_error_curve_reads_the_yaw_error_at_ten_instants():
+    """A heading error growing 0, 2, 4 ... 38 deg over 20 frames: the curve holds it at frames round(k 19/9)."""
+    t = 20
+    cam = _camera(20.0, t)
+    err = 2.0 * np.arange(t)
+    curve = metrics.heading_error_curve(_facing(30.0 + err, cam), _facing(np.full(t, 30.0), cam), cam, 10)
+    frames = np.round(np.linspace(0, t - 1, 10)).astype(int)
+    np.testing.assert_allclose(curve, err[frames], atol=1e-6)

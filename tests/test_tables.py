@@ -6,6 +6,7 @@ import pytest
 from scipy import stats as st
 
 from harness.evaluation import stats, tables
+from harness.evaluation.methods import CURVE_POINTS
 from harness.evaluation.report import make_report
 from harness.evaluation.runner import run_scenario
 from harness.evaluation.scenario import parse_scenario
@@ -180,3 +181,16 @@ def test_recognition_and_heading_by_viewing_direction(tmp_path):
     assert (tmp_path / "tiny" / "plots" / "by_view.png").is_file()
     assert "## Against the viewpoint" in (tmp_path / "tiny" / "report.md").read_text()
     assert (tmp_path / "tiny" / "by_view.csv").is_file()
+
+
+def test_heading_over_time_is_the_median_of_the_stored_curves(rows):
+    rng = np.random.default_rng(3)
+    rows = rows.assign(heading_curve=[list(rng.uniform(0, 180, CURVE_POINTS)) if m != "gt_base" else []
+                                      for m in rows["method"]])
+    curve = tables.heading_over_time(rows)
+    assert set(curve["method"]) == {"full", "no_database"}          # gt_base is given the pose: no curve
+    cond = rows["condition"].iloc[0]
+    g = rows[(rows["condition"] == cond) & (rows["method"] == "full")]
+    cell = curve[(curve["condition"] == cond) & (curve["method"] == "full")].iloc[3]
+    assert cell["heading_err_median_deg"] == pytest.approx(np.median([c[3] for c in g["heading_curve"]]))
+    assert cell["q25"] <= cell["heading_err_median_deg"] <= cell["q75"] and cell["runs"] == len(g)

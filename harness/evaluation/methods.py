@@ -52,10 +52,10 @@ RECOGNITION_COLUMNS = ("class_pred", "correct", "frame_accuracy", "time_to_corre
                        "accuracy_curve", "confidence", "posterior_final")
 RECOVERY_COLUMNS = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", "pa_mpjpe_mm",
                     "pa_mpjpe17_mm", "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m", "base_rot_err_deg",
-                    "heading_err_deg", "tilt_err_deg", "reproj_px", "heading_err_twin_deg")
+                    "heading_err_deg", "tilt_err_deg", "reproj_px", "heading_err_twin_deg", "heading_curve")
 BASE_POSE_COLUMNS = ("base_pos_err_m", "base_depth_err_m", "base_rot_err_deg", "heading_err_deg", "tilt_err_deg",
-                     "heading_err_twin_deg")
-CURVE_POINTS = 10       # accuracy_curve: whether the argmax is right at 10 evenly spaced fractions of the clip
+                     "heading_err_twin_deg", "heading_curve")
+CURVE_POINTS = 10       # accuracy_curve, heading_curve: at 10 evenly spaced fractions of the clip
 STREAM_RECOGNITION_COLUMNS = STREAM_COLUMNS + ("segments_pred",)
 REPRODUCTION_COLUMNS = ("repro_dtw_deg", "repro_dtw_mm", "mean_dtw_deg", "mean_dtw_mm", "repro_beats_mean")
 
@@ -232,11 +232,13 @@ def recovery_scores(inputs: RunInputs, qpos_est: np.ndarray) -> dict:
     out |= metrics.base_errors(qpos_est[:, :3], qpos_est[:, 3:7], truth.base_pos_cam, truth.base_quat_cam)
     out |= metrics.heading_tilt_errors(qpos_est[:, 3:7], truth.base_quat_cam, truth.camera_rot)
     out |= metrics.heading_twin_error(qpos_est[:, 3:7], truth.base_quat_cam, truth.camera_rot)
+    out["heading_curve"] = metrics.heading_error_curve(qpos_est[:, 3:7], truth.base_quat_cam, truth.camera_rot,
+                                                       CURVE_POINTS)
     return out
 
 
 def not_produced(columns: tuple[str, ...]) -> dict:
-    return {c: ("" if c == "class_pred" else [] if c in ("accuracy_curve", "segments_pred")
+    return {c: ("" if c == "class_pred" else [] if c in ("accuracy_curve", "heading_curve", "segments_pred")
                 else {} if c == "posterior_final" else np.nan) for c in columns}
 
 

@@ -173,6 +173,15 @@ def heading_tilt_errors(est_quat_cam: np.ndarray, true_quat_cam: np.ndarray, cam
             "tilt_err_deg": float(np.rad2deg(np.mean(swing_angle)))}
 
 
+def heading_error_curve(est_quat_cam: np.ndarray, true_quat_cam: np.ndarray, camera_rot: np.ndarray,
+                        points: int) -> list[float]:
+    """The heading error (deg, ``heading_tilt_errors``' twist angle) at frames ``round(k (T - 1) / (points -
+    1))``, ``k = 0..points-1``: how the baselink's heading settles over the clip."""
+    twist, _ = _twist_swing(est_quat_cam, true_quat_cam, camera_rot)
+    frames = np.round(np.linspace(0, len(twist) - 1, points)).astype(int)
+    return [float(v) for v in np.rad2deg(twist[frames])]
+
+
 def _twist_swing(est_quat_cam: np.ndarray, true_quat_cam: np.ndarray, camera_rot: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Per frame, the twist (about world z) and swing angles (rad) of ``D = R_est R_true^T`` (world frame)."""

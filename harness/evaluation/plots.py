@@ -177,6 +177,16 @@ def plot_class_heatmap(per_class: pd.DataFrame, classes: list[str], path: Path) 
 def plot_accuracy_over_time(curve: pd.DataFrame, path: Path) -> bool:
     """Accuracy against time since the start of the motion (fraction of the clip), one line per method (and
     line style per condition when there are several)."""
+    return _plot_over_time(curve, "accuracy", "accuracy of the current argmax", (-0.02, 1.02), path)
+
+
+def plot_heading_over_time(curve: pd.DataFrame, path: Path) -> bool:
+    """The median heading error against time since the start of the motion (``tables.heading_over_time``),
+    one line per method (and line style per condition), beside the accuracy over time."""
+    return _plot_over_time(curve, "heading_err_median_deg", "median heading error (deg)", (0.0, 180.0), path)
+
+
+def _plot_over_time(curve: pd.DataFrame, column: str, ylabel: str, ylim: tuple[float, float], path: Path) -> bool:
     if not len(curve):
         return False
     plt = _pyplot()
@@ -186,11 +196,11 @@ def plot_accuracy_over_time(curve: pd.DataFrame, path: Path) -> bool:
     for (method, cond), g in curve.groupby(["method", "condition"], sort=False):
         k = conds.index(cond)
         label = method if len(conds) == 1 else f"{method}, {cond}"
-        ax.plot(g["fraction"], g["accuracy"], marker="o", ms=3, color=_colour(method), ls=styles[k % len(styles)],
+        ax.plot(g["fraction"], g[column], marker="o", ms=3, color=_colour(method), ls=styles[k % len(styles)],
                 label=label)
     ax.set_xlabel("time since the start of the motion (fraction of the clip)")
-    ax.set_ylabel("accuracy of the current argmax")
-    ax.set_ylim(-0.02, 1.02)
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(*ylim)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     _save(fig, path)
@@ -320,7 +330,7 @@ def write_plots(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], class
     """Every plot the scenario calls for, under ``out_dir/plots``; returns their paths relative to ``out_dir``.
     ``fps``: the runs' frame rate (the time axis of stream timelines)."""
     from harness.evaluation.calibration import reliability_table
-    from harness.evaluation.tables import accuracy_over_time, confusion, per_class
+    from harness.evaluation.tables import accuracy_over_time, confusion, heading_over_time, per_class
 
     out_dir = Path(out_dir)
     made = []
@@ -331,6 +341,8 @@ def write_plots(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], class
                 made.append(name)
     if plot_accuracy_over_time(accuracy_over_time(rows), out_dir / "plots/accuracy_over_time.png"):
         made.append("plots/accuracy_over_time.png")
+    if plot_heading_over_time(heading_over_time(rows), out_dir / "plots/heading_over_time.png"):
+        made.append("plots/heading_over_time.png")
     if plot_class_heatmap(per_class(rows), classes, out_dir / "plots/class_accuracy.png"):
         made.append("plots/class_accuracy.png")
     if plot_reliability(reliability_table(rows), out_dir / "plots/reliability.png"):

@@ -75,6 +75,9 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
             "each clip (0 = first frame, 1 = last). An offline method (`full_smoothed`) decides once, at the "
             "end, so its line is flat by construction.\n",
             *_section_plots(figures, ("accuracy_over_time",)),
+            "Beside it, the median heading error of the baselink at the same instants (`heading_over_time.csv` "
+            "has the 25-75% range), per method that estimates the base pose.\n",
+            *_section_plots(figures, ("heading_over_time",)),
             "## Recognition per class\n",
             *_section_plots(figures, ("class_accuracy",)),
             "(numbers in `per_class.csv`)\n",

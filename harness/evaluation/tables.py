@@ -224,6 +224,27 @@ def accuracy_over_time(rows: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out, columns=["condition", "method", "fraction", "accuracy", "runs"])
 
 
+def heading_over_time(rows: pd.DataFrame) -> pd.DataFrame:
+    """The baselink's heading error against time since the start of the motion: per condition, method that
+    estimates the base pose and fraction of the clip (``heading_curve``'s instants), the median over runs (deg)
+    and its 25-75% range."""
+    cols = ["condition", "method", "fraction", "heading_err_median_deg", "q25", "q75", "runs"]
+    if "heading_curve" not in rows or not len(rows):
+        return pd.DataFrame(columns=cols)
+    out = []
+    for (cond, method), g in _order(rows, ["run_key"]).groupby(["condition", "method"], sort=False):
+        curves = np.array([c for c in g["heading_curve"] if isinstance(c, list) and len(c) == CURVE_POINTS],
+                          dtype=float).reshape(-1, CURVE_POINTS)
+        if not len(curves):
+            continue
+        q25, med, q75 = np.percentile(curves, [25, 50, 75], axis=0)
+        for k, frac in enumerate(np.linspace(0.0, 1.0, CURVE_POINTS)):
+            out.append({"condition": cond, "method": method, "fraction": round(float(frac), 3),
+                        "heading_err_median_deg": float(med[k]), "q25": float(q25[k]), "q75": float(q75[k]),
+                        "runs": len(curves)})
+    return pd.DataFrame(out, columns=cols)
+
+
 def worst_runs(rows: pd.DataFrame, method: str = "full", n: int = 3) -> pd.DataFrame:
     """The ``n`` worst runs of ``method``: wrong before right, then the lowest log posterior of the true class,
     then the largest camera-frame MPJPE."""
@@ -285,7 +306,7 @@ def by_view(rows: pd.DataFrame, n_boot: int = N_BOOT, seed: int = 0) -> pd.DataF
 def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str],
                  n_boot: int = N_BOOT, seed: int = 0) -> dict[str, pd.DataFrame]:
     """Write ``summary``, ``headline``, ``per_class``, ``confusion``, ``paired_tests``, ``accuracy_over_time``,
-    ``worst_runs``, ``calibration``, ``reliability`` and ``by_view`` as CSV and Markdown,
+    ``heading_over_time``, ``worst_runs``, ``calibration``, ``reliability`` and ``by_view`` as CSV and Markdown,
     and ``metrics.json`` (pooled metrics), under ``out_dir``. Returns the tables by name."""
     out_dir = Path(out_dir)
     summ = summary(rows, swept, n_boot, seed)
@@ -297,7 +318,8 @@ def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], clas
     tables = {"summary": summ, "headline": headline(summ, swept, head),
               "per_class": per_class(rows), "paired_tests": paired_tests(rows),
               "timing": headline(timing, swept, TIMING),
-              "accuracy_over_time": accuracy_over_time(rows), "worst_runs": worst_runs(rows),
+              "accuracy_over_time": accuracy_over_time(rows), "heading_over_time": heading_over_time(rows),
+              "worst_runs": worst_runs(rows),
               "calibration": calibration_table(rows, swept), "reliability": reliability_table(rows),
               "by_view": by_view(rows, n_boot, seed)}
     conf = confusion(rows, classes)
