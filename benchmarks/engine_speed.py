@@ -2,7 +2,8 @@
 
     MUJOCO_GL=egl python benchmarks/engine_speed.py [--reference COMMIT] [--classes walk kick ...]
 
-10 primitives (6 demos each), 200 particles in total, 100 markers, 150 model points, one process. The
+10 primitives (6 demos each), each engine's own default number of particles (``--particles`` sets one for
+both), 100 markers, 150 model points, one process. The
 observations and the database are made once with this checkout and written to a temporary directory; the
 engine of this checkout tracks them, then the engine of ``--reference`` (a git commit, checked out into a
 temporary worktree and run in a subprocess on the same files). Machines differ in speed, so the ratio is the
@@ -34,7 +35,8 @@ from harness.body import BodyModel
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
 from harness.observation import Observation
 db = MotionDatabase.load(sys.argv[1])
-tracker = Tracker(db, BodyModel.load(), TrackerConfig(particles=int(sys.argv[2]), model_points=int(sys.argv[3])),
+particles = {} if sys.argv[2] == "default" else {"particles": int(sys.argv[2])}
+tracker = Tracker(db, BodyModel.load(), TrackerConfig(model_points=int(sys.argv[3]), **particles),
                   rng=np.random.default_rng(1))
 out = []
 for i, path in enumerate(sys.argv[4:]):
@@ -47,14 +49,14 @@ print(json.dumps(out))
 """
 
 
-def _reference_times(commit: str, db_path: Path, obs_paths: list[Path], particles: int, points: int) -> list:
+def _reference_times(commit: str, db_path: Path, obs_paths: list[Path], particles: int | None, points: int) -> list:
     with tempfile.TemporaryDirectory() as tmp:
         tree = Path(tmp) / "reference"
         subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), commit], check=True,
                        capture_output=True)
         try:
             env = dict(os.environ, PYTHONPATH=str(tree))
-            done = subprocess.run([sys.executable, "-c", _REFERENCE_SCRIPT, str(db_path), str(particles), str(points),
+            done = subprocess.run([sys.executable, "-c", _REFERENCE_SCRIPT, str(db_path), str(particles or "default"), str(points),
                                    *map(str, obs_paths)], cwd=tree, env=env, check=True, capture_output=True,
                                   text=True)
             return json.loads(done.stdout.strip().splitlines()[-1])
@@ -74,7 +76,7 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--classes", nargs="*", default=["walk", "kick", "jumping_jack", "squat", "wave"])
-    ap.add_argument("--particles", type=int, default=200)
+    ap.add_argument("--particles", type=int, default=None, help="particles of both engines (default: each its own)")
     ap.add_argument("--points", type=int, default=150)
     ap.add_argument("--reference", default=DEFAULT_REFERENCE, help="git commit of the reference engine "
                                                                    "('none' to skip it)")
@@ -95,7 +97,8 @@ def main() -> None:
             obs_paths.append(Path(tmp) / f"obs{i}.npz")
             obs.save(obs_paths[-1])
         t0 = time.perf_counter()
-        tracker = Tracker(db, body, TrackerConfig(particles=args.particles, model_points=args.points,
+        particles = {} if args.particles is None else {"particles": args.particles}
+        tracker = Tracker(db, body, TrackerConfig(model_points=args.points, **particles,
                                                   **settings_from_strings(args.set)), rng=np.random.default_rng(1))
         print(f"database transform (once): {1e3 * (time.perf_counter() - t0):.0f} ms for "
               f"{db.means_.shape[0] * db.means_.shape[1]} states x {args.points} points")

@@ -39,7 +39,7 @@ def _one(job) -> dict:
     first = int(np.argmax(obs.counts > 0))
     true = truth.base_pos_cam[:, 2]
     mid, last = max(first, int(round(0.4 * (len(obs) - 1)))), len(obs) - 1
-    guess = depth_guess(obs.intrinsics, obs.flows[first], tracker.model.body_height)
+    guess = depth_guess(obs.intrinsics, obs.flows[first], tracker.model.body_extent)
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class,
             "guess": guess / true[first], "spawned": est.filter_pos[first, 2] / true[first],
             "at_40pct": est.filter_pos[mid, 2] / true[mid], "final": est.filter_pos[last, 2] / true[last]}

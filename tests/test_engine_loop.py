@@ -38,9 +38,11 @@ def _stepped(tracker, obs, frames, **reset):
 
 def test_batched_weighing_equals_a_loop_over_tracks_and_classes(body, trained, clip):
     """All tracks' particles and belief terms in one kernel call give, per track, exactly the per-particle
-    ``log sum_c w_c p(y | x, c)`` of a loop over tracks and terms, each term projected on its own."""
+    ``log sum_c w_c p(y | x, c)`` of a loop over tracks and terms, each term projected on its own (tracks that
+    believe in several primitives: a track of one primitive has one term)."""
     obs, _, _ = clip
-    tracker = Tracker(trained, body, TrackerConfig(particles=60, model_points=40, weigh_class_mass=0.9999),
+    tracker = Tracker(trained, body, TrackerConfig(particles=60, model_points=40, weigh_class_mass=0.9999,
+                                                   class_tracks=False),
                       rng=np.random.default_rng(2))
     _stepped(tracker, obs, 6, rng=np.random.default_rng(2))
     tracks, source, scorer = tracker.tracks, tracker.source, tracker.scorer

@@ -7,7 +7,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.body.kinematics import geom_z_range
 from harness.body.model import BodyModel
 from harness.body.surface import SurfacePoints, sample_surface
 from harness.engine.database import MotionDatabase
@@ -21,7 +20,9 @@ class EngineModel:
     points: the engine's own area-uniform sample of the body surface (seeded independently of any marker);
     spread: the per-axis std of the surface patch one point stands for (m); dists: every state's point
     distributions, flattened to ``S = C * K`` in (class, state) order; db_means, db_covars: ``(S, 106)``;
-    body_height: standing height (m), used only by the first depth guess. Read-only after construction.
+    body_extent: the vertical extent (m) of the model points that ``particle_filter.depth_guess`` compares the
+    flows' with: the 5-95% percentile range of their height, the median over the database's states (the
+    standing height would put the body 1.3x too far, issue 21). Read-only after construction.
     """
 
     db: MotionDatabase
@@ -31,7 +32,7 @@ class EngineModel:
     dists: PointDistributions
     db_means: np.ndarray
     db_covars: np.ndarray
-    body_height: float
+    body_extent: float
 
     @classmethod
     def build(cls, db: MotionDatabase, body: BodyModel, model_points: int, model_seed: int) -> "EngineModel":
@@ -39,9 +40,9 @@ class EngineModel:
         points = sample_surface(body, model_points, np.random.default_rng(model_seed))
         spread = patch_std(body, model_points)
         C, K, D = db.means_.shape
-        z = geom_z_range(body, body.zero_qpos())
-        return cls(db, body, points, spread, database_point_distributions(db, body, points, spread),
-                   db.means_.reshape(C * K, D), db.covars_.reshape(C * K, D), float(z[:, 1].max() - z[:, 0].min()))
+        dists = database_point_distributions(db, body, points, spread)
+        return cls(db, body, points, spread, dists, db.means_.reshape(C * K, D), db.covars_.reshape(C * K, D),
+                   body_extent(dists))
 
     @property
     def n_classes(self) -> int:
@@ -50,3 +51,11 @@ class EngineModel:
     @property
     def n_states(self) -> int:
         return self.db.means_.shape[1]
+
+
+def body_extent(dists: PointDistributions) -> float:
+    """The median over states ``(S, P, 3)`` of the 5-95% range of the model points' mean height (base frame z,
+    the body's up): the statistic ``particle_filter.depth_guess`` takes of the flows, so the guess is unbiased
+    for an unoccluded body."""
+    lo, hi = np.percentile(dists.pos[:, :, 2], [5, 95], axis=1)
+    return float(np.median(hi - lo))

@@ -134,33 +134,35 @@ class ParticleCloud:
         return w @ self.positions, geometry.weighted_mean(self.quats, w)
 
 
-def depth_guess(intr: Intrinsics, flows: np.ndarray, body_height: float) -> float | None:
-    """The depth (m) at which a body of ``body_height`` spans the flows' vertical extent (their 5-95%
-    percentile range of ``v``), or None with fewer than two flows."""
+def depth_guess(intr: Intrinsics, flows: np.ndarray, body_extent: float) -> float | None:
+    """The depth (m) at which points spanning ``body_extent`` (m, vertically: ``model.body_extent``) span the
+    flows' vertical extent (their 5-95% percentile range of ``v``), or None with fewer than two flows."""
     pts = np.asarray(flows, dtype=float).reshape(-1, 4)[:, :2]
     if len(pts) < 2:
         return None
     v_lo, v_hi = np.percentile(pts[:, 1], [5, 95])
-    return intr.fy * body_height / max(v_hi - v_lo, 1.0)
+    return intr.fy * body_extent / max(v_hi - v_lo, 1.0)
 
 
 def initial_cloud(intr: Intrinsics, flows: np.ndarray, n: int, rng: np.random.Generator, *,
-                  depth_range: tuple[float, float], world_from_camera: np.ndarray, body_height: float
-                  ) -> ParticleCloud:
-    """A coarse prior: the subject where the flows are, at a depth within ``depth_range`` and a band around
-    what the flows' vertical extent suggests, any heading, upright under the cameras ``world_from_camera``
-    (``(n, 3, 3)`` drawn by the caller from its elevation prior, or the known tilt)."""
+                  depth_range: tuple[float, float], world_from_camera: np.ndarray, body_extent: float,
+                  focus: tuple[float, float] = (0.0, 0.1)) -> ParticleCloud:
+    """A coarse prior: the subject where the flows are, any heading, upright under the cameras
+    ``world_from_camera`` (``(n, 3, 3)`` drawn by the caller from its elevation prior, or the known tilt), at a
+    depth within ``depth_range`` drawn from a mixture around what the flows' vertical extent suggests
+    (``depth_guess``): a share ``focus[0]`` log-normal about the guess with log-std ``focus[1]`` (the guess is
+    unbiased for a body seen whole), the rest log-uniform over ``[0.35, 1.3]`` times it (a body partly hidden,
+    a wall hiding the legs, or crouched, looks farther; raised arms, nearer)."""
     lo, hi = depth_range
     if not 0 < lo < hi:
         raise EngineError(f"depth range must satisfy 0 < near < far, got {depth_range}")
     pts = np.asarray(flows, dtype=float).reshape(-1, 4)[:, :2]
+    share, log_std = focus
     if len(pts) >= 2:
         u_lo, u_hi = np.percentile(pts[:, 0], [5, 95])
         v_lo, v_hi = np.percentile(pts[:, 1], [5, 95])
         extent = max(v_hi - v_lo, 1.0)
-        guess = depth_guess(intr, flows, body_height)
-        # The guess overestimates the depth when the body is partly hidden (a wall hiding the legs) or
-        # crouched, and underestimates it when the arms are raised, hence the asymmetric band.
+        guess = depth_guess(intr, flows, body_extent)
         near, far = max(lo, 0.35 * guess), min(hi, 1.3 * guess)
         if near >= far:
             near, far = lo, hi
@@ -168,10 +170,13 @@ def initial_cloud(intr: Intrinsics, flows: np.ndarray, n: int, rng: np.random.Ge
         # The base (pelvis) is in the lower part of the visible body, or below it when the legs are hidden.
         v = rng.uniform(v_lo + 0.2 * extent, v_hi + 0.3 * extent, n)
     else:
-        near, far = lo, hi
+        near, far, guess, share = lo, hi, None, 0.0
         u = rng.uniform(0, intr.width, n)
         v = rng.uniform(0, intr.height, n)
     z = np.exp(rng.uniform(np.log(near), np.log(far), n))
+    if share > 0:
+        focused = rng.random(n) < share
+        z = np.where(focused, np.clip(guess * np.exp(log_std * rng.standard_normal(n)), lo, hi), z)
     positions = np.stack([(u - intr.cx) * z / intr.fx, (v - intr.cy) * z / intr.fy, z], axis=1)
     quats = upright_orientations(rng.uniform(-np.pi, np.pi, n), world_from_camera)
     return ParticleCloud(positions, quats, np.full(n, -np.log(n)))

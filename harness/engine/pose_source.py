@@ -99,31 +99,52 @@ class ParticleTracks:
     # --- the first frame ------------------------------------------------------------------------
 
     def start(self, frame: Frame) -> list[Track]:
-        """A wide cloud over the coarse prior, weighed by the first frame's flows, and the tracks spawned from it."""
-        return self.spawn(self.first_cloud(frame), frame.gravity)
+        """A wide cloud over the coarse prior, weighed by the first frame's flows, and the tracks spawned from it:
+        with ``class_tracks``, a set per primitive from that primitive's own weighing of the cloud, each believing
+        only its primitive; else one set from the cloud weighed under the mixture of primitives."""
+        cfg = self.scorer.config
+        wide, per_class, log_prior = self.first_cloud(frame)
+        if not self.class_tracks:
+            wide.reweight(logsumexp(per_class + log_prior[:, None], axis=0))
+            return self.spawn(wide, frame.gravity)
+        C = len(per_class)
+        n_each = max(1, cfg.particles // (C * cfg.n_tracks))
+        tracks = []
+        for c in range(C):
+            own = ParticleCloud(wide.positions, wide.quats, wide.log_weights.copy())
+            own.reweight(per_class[c])
+            tracks += self.spawn(own, frame.gravity, primitive=c, n_each=n_each)
+        return tracks
 
-    def first_cloud(self, frame: Frame) -> ParticleCloud:
+    @property
+    def class_tracks(self) -> bool:
+        """Whether tracks hypothesise one primitive each (not in streams, where the primitive changes)."""
+        cfg = self.scorer.config
+        return cfg.class_tracks and cfg.primitive_switch == 0
+
+    def first_cloud(self, frame: Frame) -> tuple[ParticleCloud, np.ndarray, np.ndarray]:
         """``init_factor`` times the particles from the coarse prior, weighed coarse to fine: every particle
-        under the prior as one moment-matched blob, then the best ``init_keep`` of them under a term per
-        primitive (``class_mixture_log_likelihood``)."""
+        under the prior as one moment-matched blob, then the best ``init_keep`` of them (equally weighted) under
+        each primitive (``class_log_likelihoods``). Returns that cloud, the log-likelihoods ``(C, N)`` and the
+        primitives' log prior ``(C,)``."""
         cfg, model, rng = self.scorer.config, self.scorer.model, self.rng
         n_wide = cfg.particles * cfg.init_factor
         cameras = (camera_pitch(rng.uniform(*np.deg2rad(cfg.init_elevation), n_wide)) if frame.gravity is None
                    else level_world(frame.gravity))
         wide = initial_cloud(frame.intr, frame.flows, n_wide, rng, depth_range=cfg.init_distance,
-                             world_from_camera=cameras, body_height=model.body_height)
+                             world_from_camera=cameras, body_extent=model.body_extent,
+                             focus=(cfg.init_depth_focus, cfg.init_depth_focus_std))
         prior = new_recognizer(model.db, cfg).posterior
         blob = self.scorer.image(frame, geometry.to_matrix(wide.quats), wide.positions,
                                  model.dists.mixture(prior.ravel()))
         coarse = self.scorer.frame_log_likelihood(frame, blob, cfg.n_eff_filter)
         wide = wide.take(np.argsort(coarse)[::-1][:int(round(cfg.init_keep * n_wide))])
-        wide.reweight(self.class_mixture_log_likelihood(frame, wide, prior))
-        return wide
+        return wide, self.class_log_likelihoods(frame, wide, prior), np.log(prior.sum(axis=1))
 
-    def class_mixture_log_likelihood(self, frame: Frame, cloud: ParticleCloud, prior: np.ndarray) -> np.ndarray:
-        """``(N,)`` tempered log-likelihood of poses under the prior ``(C, K)`` over primitives, each primitive its
-        own moment-matched belief: ``log sum_c p(c) p(y | x, c)``. One blob for all primitives would be so wide
-        that the first frame could not tell depth; one term per state would cost ``C K`` times more."""
+    def class_log_likelihoods(self, frame: Frame, cloud: ParticleCloud, prior: np.ndarray) -> np.ndarray:
+        """``(C, N)`` tempered log-likelihoods ``log p(y | x, c)`` of poses under each primitive, each its own
+        moment-matched belief (the prior ``(C, K)`` over its states). One blob for all primitives would be so
+        wide that the first frame could not tell depth; one term per state would cost ``K`` times more."""
         model = self.scorer.model
         C, K = model.n_classes, model.n_states
         mixes = PointDistributions.concatenate([model.dists.take(np.arange(c * K, (c + 1) * K)).mixture(prior[c])
@@ -131,20 +152,24 @@ class ParticleTracks:
         n = len(cloud)
         img = self.scorer.image(frame, np.tile(geometry.to_matrix(cloud.quats), (C, 1, 1)),
                                 np.tile(cloud.positions, (C, 1)), mixes, np.repeat(np.arange(C), n))
-        ll = self.scorer.frame_log_likelihood(frame, img, self.scorer.config.n_eff_filter).reshape(C, n)
-        return logsumexp(ll + np.log(prior.sum(axis=1))[:, None], axis=0)
+        return self.scorer.frame_log_likelihood(frame, img, self.scorer.config.n_eff_filter).reshape(C, n)
 
-    def spawn(self, wide: ParticleCloud, gravity: np.ndarray | None) -> list[Track]:
+    def spawn(self, wide: ParticleCloud, gravity: np.ndarray | None, *, primitive: int | None = None,
+              n_each: int | None = None) -> list[Track]:
         """The tracks of a weighted first cloud: its heaviest orientation mode (the lead), the lead's turns
-        about the body's vertical, and its twin, each with an equal share of the particles. A track starts from
-        the cloud's own particles within 45 degrees of its orientation (their positions fit it); where they hold
-        fewer than ``min_spawn_ess`` effective particles, from the lead's particles turned to it."""
+        about the body's vertical, and its twin, with ``n_each`` particles each (default: an equal share of all).
+        A track starts from the cloud's own particles within 45 degrees of its orientation (their positions fit
+        it); where they hold fewer than ``min_spawn_ess`` effective particles, from the lead's particles turned
+        to it. Each track is spawned once per ``spawn_depths`` scale of its particles' depth (a family of depth
+        siblings, pruned among themselves by ``depth_prune_nats``). With ``primitive``, the tracks believe only
+        that primitive (``Recognizer.restrict``)."""
         cfg, rng = self.scorer.config, self.rng
         _, lead = wide.estimate()
         spawn = [("lead", lead)] + [(f"turn{a:+g}", turned(lead[None], np.deg2rad(a))[0]) for a in cfg.track_turns]
         if cfg.twin_track:
             spawn.append(("twin", twin(lead[None], gravity)[0]))
-        n_each = cfg.particles // len(spawn)
+        n_each = n_each if n_each is not None else max(1, cfg.particles // (len(spawn) * len(cfg.spawn_depths)))
+        prefix = "" if primitive is None else f"{self.scorer.model.db.classes_[primitive]}/"
         tracks = []
         for origin, centre in spawn:
             near = geometry.angle_between(wide.quats, centre[None]) <= np.deg2rad(45.0)
@@ -156,8 +181,17 @@ class ParticleTracks:
                 cloud = wide.take(systematic_resample(np.where(lead_near, wide.weights, 0.0), rng, n_each))
                 rel = geometry.multiply(geometry.conjugate(lead), centre)     # lead -> centre, body frame
                 cloud.quats = geometry.multiply(cloud.quats, np.broadcast_to(rel, cloud.quats.shape))
-            tracks.append(Track(self._spawned, origin, new_recognizer(self.scorer.model.db, cfg), cloud))
-            self._spawned += 1
+            family = self._spawned
+            for scale in cfg.spawn_depths:
+                belief = new_recognizer(self.scorer.model.db, cfg)
+                if primitive is not None:
+                    belief.restrict([primitive])
+                # Scaling the position about the camera centre keeps the body where the flows are in the image.
+                sibling = ParticleCloud(cloud.positions * scale, cloud.quats.copy(), cloud.log_weights.copy())
+                name = prefix + origin + ("" if scale == 1.0 else f"@{scale:g}")
+                tracks.append(Track(self._spawned, name, belief, sibling, primitive=primitive,
+                                    family=family if len(cfg.spawn_depths) > 1 else None))
+                self._spawned += 1
         return tracks
 
     # --- every frame ----------------------------------------------------------------------------
@@ -204,7 +238,8 @@ class ParticleTracks:
 
     def manage(self, tracks: list[Track]) -> list[Track]:
         cfg = self.scorer.config
-        return prune_and_merge(tracks, cfg.track_prune_nats, cfg.track_merge_m, cfg.track_merge_deg)
+        return prune_and_merge(tracks, cfg.track_prune_nats, cfg.track_merge_m, cfg.track_merge_deg,
+                               family_nats=cfg.depth_prune_nats)
 
 
 def mixture_pairs(particles: list[int], terms: list[int]) -> tuple[np.ndarray, np.ndarray]:

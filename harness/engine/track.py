@@ -71,15 +71,20 @@ class Track:
     """One global-pose hypothesis (see the module docstring).
 
     id: unique within a sequence; origin: how it was spawned (``lead``, ``turn+90``, ``turn180``, ``turn-90``,
-    ``twin``, ``given``); recognizer: its belief; cloud: its particles (None when the pose is given);
+    ``twin``, ``given``; prefixed ``walk/`` for a track of one primitive); primitive: the one primitive the track
+    hypothesises (its belief is restricted to it), or None for a belief over all; family: the id shared by
+    depth siblings spawned from one cloud at several depths (None: no siblings); recognizer: its belief; cloud: its particles (None when the pose is given);
     log_evidence: tempered nats since the first frame with flows; pose: this frame's filter estimate
     ``(position (3,), quaternion (4,))`` and pose_std ``(3,)`` the position std recovery may use around it;
     recovery: what recovery found this frame (the next proposal is guided by it when it was refined).
     """
 
-    def __init__(self, track_id: int, origin: str, recognizer: Recognizer, cloud: ParticleCloud | None = None):
+    def __init__(self, track_id: int, origin: str, recognizer: Recognizer, cloud: ParticleCloud | None = None, *,
+                 primitive: int | None = None, family: int | None = None):
         self.id = int(track_id)
         self.origin = origin
+        self.primitive = primitive
+        self.family = family
         self.recognizer = recognizer
         self.cloud = cloud
         self.log_evidence = 0.0
@@ -174,15 +179,24 @@ class Track:
                            self.recognizer.posterior)
 
 
-def prune_and_merge(tracks: list[Track], prune_nats: float, merge_m: float, merge_deg: float) -> list[Track]:
-    """The tracks worth keeping, most evidence first: those within ``prune_nats`` of the best, and of two that
-    met (positions within ``merge_m``, orientations within ``merge_deg``) only the one with more evidence."""
+def prune_and_merge(tracks: list[Track], prune_nats: float, merge_m: float, merge_deg: float, *,
+                    family_nats: float = np.inf) -> list[Track]:
+    """The tracks worth keeping, most evidence first: those within ``prune_nats`` of the best and within
+    ``family_nats`` of the best of their family (depth siblings), and of two that met (positions within
+    ``merge_m``, orientations within ``merge_deg``) and hypothesise the same primitive (or both any) only the one
+    with more evidence: a primitive's own best pose is kept until the evidence drops it."""
     best = max(t.log_evidence for t in tracks)
-    kept = sorted((t for t in tracks if t.log_evidence >= best - prune_nats), key=lambda t: -t.log_evidence)
+    family_best: dict[int, float] = {}
+    for t in tracks:
+        if t.family is not None:
+            family_best[t.family] = max(family_best.get(t.family, -np.inf), t.log_evidence)
+    kept = sorted((t for t in tracks if t.log_evidence >= best - prune_nats
+                   and (t.family is None or t.log_evidence >= family_best[t.family] - family_nats)),
+                  key=lambda t: -t.log_evidence)
     merged: list[Track] = []
     for track in kept:
         pos, quat = track.pose
-        if not any(np.linalg.norm(pos - m.pose[0]) < merge_m
+        if not any(m.primitive == track.primitive and np.linalg.norm(pos - m.pose[0]) < merge_m
                    and geometry.angle_between(quat, m.pose[1]) < np.deg2rad(merge_deg) for m in merged):
             merged.append(track)
     return merged
