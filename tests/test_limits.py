@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from harness.engine import TrackerConfig
 from harness.evaluation import limits
 from harness.evaluation.scenario import conditions, load_scenario, parse_scenario
 from harness.motion.performer import CLASSES, demonstrations
@@ -30,7 +31,8 @@ def test_shipped_scenarios_are_well_inside_the_limits(path):
 
 def test_the_estimate_grows_with_what_a_run_allocates():
     base = sum(limits.run_bytes(parse_scenario({"name": "b"})).values())
-    engine = limits.run_bytes(parse_scenario({"name": "e", "engine": {"particles": 400}}))["engine"]
+    doubled = {"particles": 2 * TrackerConfig().particles}
+    engine = limits.run_bytes(parse_scenario({"name": "e", "engine": doubled}))["engine"]
     assert engine == pytest.approx(2 * limits.run_bytes(parse_scenario({"name": "b"}))["engine"], rel=0.01)
     rendered = sum(limits.run_bytes(parse_scenario({"name": "r", "observation": {"mode": "rendered"}})).values())
     assert rendered - base == limits.RENDER_PIXEL_BYTES * 640 * 480

@@ -46,7 +46,7 @@ def test_a_five_line_scenario_gets_the_documented_defaults():
     # A swept key's section holds the first condition's value (its unswept value is never run).
     assert (s.engine.particles, s.engine.model_points, s.engine.model_seed, s.engine.init_distance) == \
         (50, 150, 7, (2.0, 8.0))
-    assert parse_scenario({"name": "small"}).engine.particles == 200
+    assert parse_scenario({"name": "small"}).engine.particles == 500
     assert s.methods == ("full", "full_smoothed", "gt_base", "no_database", "joint_space")
 
 
