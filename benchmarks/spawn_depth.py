@@ -14,12 +14,13 @@ replaces the scenario's seed (development seeds for choices, the scenario's own 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import time
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 
 import numpy as np
+
+import dev_runs
 
 COLUMNS = ("guess", "spawned", "at_40pct", "final")
 
@@ -31,10 +32,7 @@ def _one(job) -> dict:
 
     inputs = pipeline.run_inputs(run)
     obs, truth = inputs.obs, inputs.truth
-    tracker = inputs.tracker()
-    if overrides:
-        tracker.config = dataclasses.replace(tracker.config, **overrides)
-        tracker.scorer = dataclasses.replace(tracker.scorer, config=tracker.config)
+    tracker = dev_runs.tracker_for(inputs, overrides)
     est = tracker.run(obs)
     first = int(np.argmax(obs.counts > 0))
     true = truth.base_pos_cam[:, 2]
@@ -53,29 +51,11 @@ def summary(ratios: np.ndarray) -> str:
 
 def main() -> None:
     from harness.engine.config import settings_from_strings
-    from harness.evaluation.runner import plan
-    from harness.evaluation.scenario import load_scenario
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenario", default="scenarios/default.yaml")
-    ap.add_argument("--seed", type=int, default=None, help="replace the scenario's seed")
-    ap.add_argument("--amount", type=float, nargs="*", default=[0.0, 0.4],
-                    help="occlusion amounts (conditions of the scenario's occluders.amount sweep)")
-    ap.add_argument("--limit", type=int, default=None, help="runs per condition")
-    ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--cache", default="results/cache")
-    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="engine settings to use instead")
+    dev_runs.add_arguments(ap)
     args = ap.parse_args()
-    scenario = load_scenario(args.scenario)
-    if args.seed is not None:
-        scenario = scenario.model_copy(update={"seed": args.seed})
-    runs = [r for r in plan(scenario, args.cache)
-            if dict(r.swept).get("occluders.amount", r.config.occluders.amount) in args.amount]
-    if args.limit:
-        by_cond: dict = {}
-        for r in runs:
-            by_cond.setdefault(r.condition, []).append(r)
-        runs = [r for rs in by_cond.values() for r in rs[:args.limit]]
+    runs = dev_runs.selected(args)
     overrides = settings_from_strings(args.set)
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:

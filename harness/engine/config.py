@@ -65,6 +65,8 @@ class TrackerConfig:
     occlusion_radius: float = 1.0            # footprint of a point's patch, in patch radii
     occlusion_depth: float = 0.08            # m: a point must be this much nearer to cover another
     smoothing_frames: float = 2.0            # std (frames) of the offline estimate's trajectory smoother
+    posterior_temperature: float = 1.0       # the class posterior's calibration (harness.engine.confidence) ...
+    posterior_floor: float = 0.0             # ... fitted by benchmarks/posterior_calibration.py
     min_spawn_ess: float = 5.0               # a track starts from the first frame's particles near it if they
                                              # hold this many effective particles, else from the lead's turned
     track_prune_nats: float = 30.0           # a track trailing the best by this much evidence is dropped (60:
@@ -120,10 +122,11 @@ MAX_SPAWN_DEPTHS = 5
 _AT_LEAST_ZERO = ("model_seed", "weight_iterations", "refine_iterations", "recover_tracks", "smoothing_frames",
                   "weight_smoothing", "position_noise", "rotation_noise", "tilt_noise", "guide_rotation_std",
                   "occlusion_radius", "occlusion_depth", "min_spawn_ess", "track_merge_deg", "track_merge_m")
-_ABOVE_ZERO = ("open_cell_px", "init_depth_focus_std", "floor_std", "floor_flight_height", "refine_position_std", "refine_rotation_std",
-               "track_prune_nats", "depth_prune_nats")
-_WITHIN = {"init_keep": (0.0, 1.0, "(0, 1]"), "init_depth_focus": (None, 1.0, "[0, 1]"), "weigh_class_mass": (0.0, 1.0, "(0, 1]"),
-           "start_spread": (None, 1.0, "[0, 1]"), "floor_flight": (None, 1.0, "[0, 1)")}
+_ABOVE_ZERO = ("open_cell_px", "posterior_temperature", "init_depth_focus_std", "floor_std", "floor_flight_height",
+               "refine_position_std", "refine_rotation_std", "track_prune_nats", "depth_prune_nats")
+_WITHIN = {"init_keep": (0.0, 1.0, "(0, 1]"), "init_depth_focus": (None, 1.0, "[0, 1]"),
+           "weigh_class_mass": (0.0, 1.0, "(0, 1]"), "start_spread": (None, 1.0, "[0, 1]"),
+           "posterior_floor": (None, 1.0, "[0, 1)"), "floor_flight": (None, 1.0, "[0, 1)")}
 _COUNTS = ("weight_iterations", "refine_iterations", "recover_tracks", "em_iterations", "weigh_classes",
            "init_factor")
 

@@ -19,7 +19,8 @@ class Estimate:
     recognise. The engine's estimates also carry: joint_posterior ``(T, C, K)`` over (primitive, state);
     filter_pos ``(T, 3)`` / filter_quat ``(T, 4)``: the leading track's filter estimate before refinement;
     n_tracks ``(T,)``; leader ``(T,)``: the origin of the leading track; ms_per_frame ``(T,)``; timing: mean ms per
-    frame of each stage; offline: the hindsight estimate of the same run (``records.offline_estimate``), for
+    frame of each stage; raw_log_posterior ``(T, C)``: the log class posterior before calibration
+    (``harness.engine.confidence``); offline: the hindsight estimate of the same run (``records.offline_estimate``), for
     evaluation only; reproduction: a reproduced motion (``harness.motion.Motion``) when the method reproduces.
     """
 
@@ -33,6 +34,7 @@ class Estimate:
     leader: np.ndarray | None = None
     ms_per_frame: np.ndarray | None = None
     timing: dict = field(default_factory=dict)
+    raw_log_posterior: np.ndarray | None = None
     offline: "Estimate | None" = None
     reproduction: object | None = None
 

@@ -4,8 +4,8 @@ Per frame the tracker records each live track (``TrackRecord``: its evidence, fi
 configuration and belief) in a ``FrameRecord``; frames before the first flows hold no tracks. From the records:
 
 - ``causal_estimate``: frame ``t`` from frames ``<= t``. The class posterior is the evidence-weighted mixture
-  ``sum_j softmax(L)_j p_j(c | y)`` of the tracks' posteriors; the pose comes from the track with the most
-  evidence. Frames before the first flows take the first estimate.
+  ``sum_j softmax(L)_j p_j(c | y)`` of the tracks' posteriors, calibrated (``confidence``); the pose comes from
+  the track with the most evidence. Frames before the first flows take the first estimate.
 - ``offline_estimate`` (a post-processor over the records, for evaluation): the whole trajectory of the track
   with the most evidence at the end, smoothed, and the final posterior at every frame (one primitive per clip;
   a stream keeps its causal posteriors).
@@ -19,8 +19,9 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.special import softmax
+from scipy.special import log_softmax, logsumexp, softmax
 
+from harness.engine.confidence import calibrated
 from harness.engine.estimate import Estimate, smooth_trajectory
 from harness.errors import EngineError
 
@@ -58,6 +59,14 @@ class FrameRecord:
         joint /= joint.sum()
         return joint, self.tracks[int(np.argmax(evidence))]
 
+    def log_class_posterior(self) -> np.ndarray:
+        """``log`` of the mixture's class posterior ``(C,)``, summed in log space: with a track per primitive
+        the classes' evidence differs by hundreds of nats, which probabilities would round to 0 and 1."""
+        log_share = log_softmax(np.array([t.log_evidence for t in self.tracks]))
+        with np.errstate(divide="ignore"):
+            log_class = np.log(np.array([t.joint_posterior.sum(axis=1) for t in self.tracks]))
+        return logsumexp(log_share[:, None] + log_class, axis=0)
+
 
 def with_known_base(qpos: np.ndarray, known_pose: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
     """A configuration ``(57,)`` with its base replaced by ``known_pose`` when there is one."""
@@ -66,19 +75,23 @@ def with_known_base(qpos: np.ndarray, known_pose: tuple[np.ndarray, np.ndarray] 
     return np.concatenate([known_pose[0], known_pose[1], qpos[7:]])
 
 
-def causal_estimate(records: list[FrameRecord], classes: np.ndarray, timing: dict) -> Estimate:
-    """The engine's causal estimate from its frame records (module docstring)."""
+def causal_estimate(records: list[FrameRecord], classes: np.ndarray, timing: dict, *, temperature: float = 1.0,
+                    floor: float = 0.0) -> Estimate:
+    """The engine's causal estimate from its frame records (module docstring); its class posterior is the
+    mixture's calibrated by ``temperature`` and ``floor`` (``confidence.calibrated``), the raw one kept as
+    ``raw_log_posterior``."""
     first = next((i for i, r in enumerate(records) if r.tracks), None)
     if first is None:
         raise EngineError("no frame had any flow: nothing to estimate")
     rows = []
     for record in records[first:]:
         joint, lead = record.decision()
-        rows.append((lead.qpos, joint.sum(axis=1), joint, lead.position, lead.quat, len(record.tracks), lead.origin,
-                     record.ms))
+        rows.append((lead.qpos, record.log_class_posterior(), joint, lead.position, lead.quat, len(record.tracks),
+                     lead.origin, record.ms))
     rows = [(with_known_base(rows[0][0], r.known_pose),) + rows[0][1:7] + (0.0,) for r in records[:first]] + rows
-    qpos, post, joint, fpos, fquat, n_tracks, leader, ms = (np.array(x) for x in zip(*rows))
-    return Estimate(classes, qpos, post, joint, fpos, fquat, n_tracks, leader, ms, timing)
+    qpos, log_post, joint, fpos, fquat, n_tracks, leader, ms = (np.array(x) for x in zip(*rows))
+    return Estimate(classes, qpos, calibrated(log_post, temperature, floor), joint, fpos, fquat, n_tracks, leader,
+                    ms, timing, raw_log_posterior=log_post)
 
 
 def track_path(records: list[FrameRecord], track_id: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -150,7 +150,8 @@ class Tracker:
         """The sequence's causal estimate, with its offline (hindsight) estimate as ``offline``."""
         n = len(self.records)
         causal = causal_estimate(self.records, self.model.db.classes_.copy(),
-                                 {k: 1e3 * v / max(n, 1) for k, v in self._timing.items()})
+                                 {k: 1e3 * v / max(n, 1) for k, v in self._timing.items()},
+                                 temperature=self.config.posterior_temperature, floor=self.config.posterior_floor)
         offline = offline_estimate(self.records, causal, self.config.smoothing_frames,
                                    stream=self.config.primitive_switch > 0)
         return replace(causal, offline=offline)

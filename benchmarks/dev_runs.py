@@ -1,0 +1,46 @@
+"""The runs a development benchmark re-runs: a scenario's runs at some occlusion amounts, with its seed replaced
+(development seeds for choices, the scenario's own for reporting) and at most some runs per condition."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(ap: argparse.ArgumentParser, seed: int | None = None) -> None:
+    ap.add_argument("--scenario", default="scenarios/default.yaml")
+    ap.add_argument("--seed", type=int, default=seed, help="replace the scenario's seed")
+    ap.add_argument("--amount", type=float, nargs="*", default=[0.0, 0.4],
+                    help="occlusion amounts (conditions of the scenario's occluders.amount sweep)")
+    ap.add_argument("--limit", type=int, default=None, help="runs per condition")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--cache", default="results/cache")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="engine settings to use instead")
+
+
+def selected(args: argparse.Namespace) -> list:
+    """The planned runs ``args`` select (``add_arguments``)."""
+    from harness.evaluation.runner import plan
+    from harness.evaluation.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    if args.seed is not None:
+        scenario = scenario.model_copy(update={"seed": args.seed})
+    runs = [r for r in plan(scenario, args.cache)
+            if dict(r.swept).get("occluders.amount", r.config.occluders.amount) in args.amount]
+    if args.limit:
+        by_cond: dict = {}
+        for r in runs:
+            by_cond.setdefault(r.condition, []).append(r)
+        runs = [r for rs in by_cond.values() for r in rs[:args.limit]]
+    return runs
+
+
+def tracker_for(inputs, overrides: dict):
+    """The run's tracker with engine ``overrides`` applied."""
+    import dataclasses
+
+    tracker = inputs.tracker()
+    if overrides:
+        tracker.config = dataclasses.replace(tracker.config, **overrides)
+        tracker.scorer = dataclasses.replace(tracker.scorer, config=tracker.config)
+    return tracker
