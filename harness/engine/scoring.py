@@ -4,7 +4,8 @@
 question of one frame: project these distributions at these poses (with the body's self-occlusion and the
 camera's own motion), score the flows under them (with the open region's held points: negative evidence),
 temper a frame's sum, or fold a frame into a recognizer at a pose. ``path_recognition`` is what a track that
-followed a given pose path would gather (its evidence, ``path_evidence``, and its class posteriors); ``floor_log_prior`` the camera prior's floor term.
+followed a given pose path would gather (its evidence, ``path_evidence``, and its class posteriors);
+``floor_log_prior`` the camera prior's floor term.
 """
 
 from __future__ import annotations
