@@ -9,7 +9,10 @@ engine's own tempering and pruning) is computed along the true baselink path and
 same path turned by +90, 180 and -90 degrees about the body's vertical, and its depth-reflected mirrored twin
 (``harness.engine.track.twin``). Prints per run the margin of the truth over each alternative, then the share of
 runs in which the truth beats every alternative and the smallest margins. This is what the engine's tracks
-rest on: when the truth does not win here, no tracking can choose it. ``--seed`` replaces the scenario's seed
+rest on: when the truth does not win here, no tracking can choose it. Then, per class, the share of runs
+recognised correctly (the final class posterior of the same recursions, ``scoring.path_recognition``) along the
+true path and along its exact twin: a both-handed database (``database.mirrored``) should recognise the twin's
+mirrored body as well as the truth. ``--seed`` replaces the scenario's seed
 (development seeds for choices, the scenario's own for reporting).
 """
 
@@ -30,7 +33,7 @@ def _one(job) -> dict:
     run, overrides = job
     from harness.engine.model import EngineModel
     from harness.engine.track import turned, twin
-    from harness.engine.scoring import path_evidence
+    from harness.engine.scoring import path_recognition
     from harness.evaluation import pipeline
     from harness.evaluation.scenario import tracker_config
 
@@ -42,8 +45,13 @@ def _one(job) -> dict:
     paths = {"truth": quat, "turn+90": turned(quat, np.pi / 2), "turn180": turned(quat, np.pi),
              "turn-90": turned(quat, -np.pi / 2), "twin": twin(quat),
              "twin_upright": np.array([twin(q[None], g)[0] for q, g in zip(quat, -truth.camera_rot[:, 2, :])])}
-    evidence = {name: float(path_evidence(model, tc, obs, pos, q).sum()) for name, q in paths.items()}
-    return {"key": run.key, "condition": run.condition_label, "class": run.test_class, **evidence}
+    evidence, recognised = {}, {}
+    for name, q in paths.items():
+        per_frame, posterior = path_recognition(model, tc, obs, pos, q)
+        evidence[name] = float(per_frame.sum())
+        recognised[name] = bool(inputs.db.classes_[posterior[-1].argmax()] == run.test_class)
+    return {"key": run.key, "condition": run.condition_label, "class": run.test_class, **evidence,
+            "recognised": recognised}
 
 
 def main() -> None:
@@ -94,6 +102,16 @@ def main() -> None:
               f"per alternative: {per_alt}")
         print(f"  smallest margins: " + ", ".join(f"{a} {margin[:, i].min():.1f}" for i, a in enumerate(ALTERNATIVES))
               + f"; runs lost: {', '.join(sub[i]['key'] + ' (' + sub[i]['class'] + ')' for i in np.flatnonzero(~wins))}")
+    print("\nrecognised (final class posterior along the path): truth / twin")
+    for cond in dict.fromkeys(r["condition"] for r in rows):
+        sub = [r for r in rows if r["condition"] == cond]
+
+        def share(runs, path):
+            return f"{100 * np.mean([r['recognised'][path] for r in runs]):.0f}"
+
+        per_class = {c: [r for r in sub if r["class"] == c] for c in sorted({r["class"] for r in sub})}
+        print(f"{cond}: {share(sub, 'truth')}% / {share(sub, 'twin')}%; "
+              + ", ".join(f"{c} {share(rs, 'truth')}/{share(rs, 'twin')}%" for c, rs in per_class.items()))
     print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s")
 
 

@@ -37,6 +37,7 @@ def test_database_is_left_to_right_and_round_trips(database, tmp_path):
         allowed = upper.copy()
         if c == march:
             allowed[-1, 0] = 1
+        allowed = np.kron(np.eye(2), allowed)     # each side's chain on its own (both-handed database)
         assert np.all(db.transmat_[c][allowed == 0] == 0)
         np.testing.assert_allclose(db.transmat_[c].sum(axis=1), 1.0)
     assert np.all(db.covars_ >= np.deg2rad(2.0) ** 2 * 0.999)
@@ -55,7 +56,7 @@ def test_forward_recursion_matches_hmmlearn(database, body):
     post = recognize_features(db, f, start_spread=0.0)
     scores = []
     for c in range(db.n_classes):
-        hmm = GaussianHMM(n_components=8, covariance_type="diag")
+        hmm = GaussianHMM(n_components=db.means_.shape[1], covariance_type="diag")
         hmm.startprob_, hmm.transmat_ = db.startprob_[c], db.transmat_[c]
         hmm.means_, hmm.covars_ = db.means_[c], db.covars_[c]
         scores.append(hmm.score(f))
@@ -71,7 +72,8 @@ def test_recognizer_pruning_and_empty_frames(database):
     before = rec.posterior.copy()
     rec.update(None)            # no evidence: the belief does not change
     np.testing.assert_allclose(rec.posterior, before / before.sum())
-    assert rec.active().sum() == 3 and rec.active()[:, 0].all()   # only the start states are worth evaluating
+    # Only the start states are worth evaluating: the first state of each side's chain, per primitive.
+    assert rec.active().sum() == 6 and rec.active()[:, [0, 8]].all()
     with pytest.raises(EngineError, match="emissions must be"):
         rec.update(np.zeros((2, 2)))
 

@@ -7,6 +7,7 @@ import pytest
 from engine_fixtures import CLASSES, synthetic_demos, synthetic_observation
 from harness import geometry
 from harness.body import body_origins, sample_surface
+from harness.body.model import mirror_angles
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
 from harness.motion.performer import CYCLIC
 from harness.engine.likelihood import flow_log_likelihoods, tempered
@@ -20,7 +21,6 @@ from harness.engine.scoring import Scorer, floor_log_prior, path_evidence
 from harness.engine.transform import JointGaussians, _self_occlusion, patch_std, state_point_distributions, to_image
 from harness.errors import EngineError
 from harness.motion.performer import CLASSES as CLASSES_ALL, perform, training_set
-from harness.motion.primitives import _MIRROR_INDEX, _MIRROR_SIGN
 from harness.observation import Observation, ObservationError
 from harness.pinhole import Intrinsics
 
@@ -39,7 +39,7 @@ def test_the_twin_is_the_depth_reflection_of_the_mirrored_body(body, rng):
     quat = upright_orientations(rng.uniform(-np.pi, np.pi, 3), camera_pitch(0.3))
     pos = np.array([[0.3, -0.2, 4.0]] * 3)
     joints = body_origins(body, body.qpos(angles, base_pos=pos, base_quat=quat))
-    mirrored = body.clip_angles(angles[:, _MIRROR_INDEX] * _MIRROR_SIGN)
+    mirrored = body.clip_angles(mirror_angles(angles))
     twin_joints = body_origins(body, body.qpos(mirrored, base_pos=pos, base_quat=twin(quat)))
     names = [body.model.body(i).name for i in range(1, body.model.nbody)]
     swapped = [{"l": "r", "r": "l"}.get(n[0], n[0]) + n[1:] for n in names]

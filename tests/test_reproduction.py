@@ -11,8 +11,9 @@ from harness.body.grounding import foot_geoms
 from harness.engine.database import MotionDatabase
 from harness.motion.performer import CYCLIC
 from harness.engine.features import motion_features
-from harness.engine.reproduction import (class_mean, expected_path, generate_angles, mirror_angles, recovered_world,
-                                         reproduce, smooth_states, state_path)
+from harness.body.model import mirror_angles
+from harness.engine.reproduction import (class_mean, expected_path, generate_angles, recovered_world, reproduce,
+                                         smooth_states, state_path)
 from harness.engine.switching import SwitchingRecognizer
 from harness.evaluation.reproduction_metrics import dtw_angle_rms_deg, dtw_mpjpe_mm, dtw_path
 from harness.motion.performer import demonstrations, training_set
@@ -95,13 +96,17 @@ def test_a_reproduction_in_another_body_scale_keeps_its_feet_on_the_floor(body, 
     assert np.allclose(rep.base_pos[0, :2], [1.0, 2.0]) and abs(geometry.heading(rep.base_quat[0]) - 0.5) < 1e-9
 
 
-def test_mirror_is_the_performers_mirror(body):
-    from harness.motion.primitives import Plan, mirror
-
-    angles = body.random_angles(np.random.default_rng(4), 5, scale=0.5)
-    zeros = np.zeros(5)
-    plan = mirror(Plan(np.rad2deg(angles), zeros, zeros, zeros, np.zeros(5, dtype=bool)))
-    np.testing.assert_allclose(mirror_angles(body, angles), np.deg2rad(plan.angles), atol=1e-12)
+def test_the_mirrored_reproduction_is_the_mirror_image_of_the_reproduction(body, db):
+    """Generated from the mirrored states, the angles are the mirrored angles of the plain reproduction and the
+    base turns the other way (the generation is linear in the states' means)."""
+    motion = demonstrations("kick", 1, np.random.default_rng(4), subject=1002, body=body)[0]
+    path = _filtered_path(db, motion, "kick")
+    plain = reproduce(db, body, "kick", path, 30.0)
+    mirrored = reproduce(db, body, "kick", path, 30.0, mirror=True)
+    np.testing.assert_allclose(mirrored.angles, np.clip(mirror_angles(plain.angles), body.lower, body.upper),
+                               atol=1e-9)
+    turn = lambda m: np.unwrap(geometry.heading(m.base_quat))  # noqa: E731
+    np.testing.assert_allclose(turn(mirrored), -turn(plain), atol=1e-9)
 
 
 def test_reproduction_with_the_demonstrators_style_beats_the_class_mean(body, db):

@@ -20,7 +20,7 @@ def two_primitives(K: int = 3, seed: int = 0) -> MotionDatabase:
     (``squat``, its last state absorbing), left-to-right with random stay probabilities and start
     distributions."""
     rng = np.random.default_rng(seed)
-    db = MotionDatabase(n_states=K, cyclic=("walk",))
+    db = MotionDatabase(n_states=K, cyclic=("walk",), mirrored=False)
     db.classes_ = np.array(["squat", "walk"])
     db.cyclic_ = np.array([False, True])
     trans = np.zeros((2, K, K))

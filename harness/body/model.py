@@ -31,8 +31,21 @@ JOINT_NAMES: tuple[str, ...] = (
     "rfemur_y", "rfemur_x", "rfemur_z", "rtibia_y", "rfoot_y", "rfoot_x", "rtoes_y",
 )
 N_ANGLES = len(JOINT_NAMES)
+# The mirror image through the body's sagittal (x-z) plane: left and right hinges swap, and every x
+# (ab/adduction, side bend) and z (twist) angle changes sign; y (flexion) angles keep theirs. Exact because the
+# model's two sides are mirror images (axes and ranges, tests/test_body_model.py).
+_SIDED = ("clavicle", "humerus", "radius", "wrist", "hand", "femur", "tibia", "foot", "toes")
+MIRROR_INDEX = np.array([JOINT_NAMES.index({"l": "r", "r": "l"}[n[0]] + n[1:] if n[1:].split("_")[0] in _SIDED
+                                           else n) for n in JOINT_NAMES])
+MIRROR_SIGN = np.array([-1.0 if n.endswith(("_x", "_z")) else 1.0 for n in JOINT_NAMES])
 NQ = 7 + N_ANGLES
 NV = 6 + N_ANGLES
+
+
+def mirror_angles(angles: np.ndarray) -> np.ndarray:
+    """Joint angles ``(..., 50)`` (any unit, model order) of the mirror-image pose (``MIRROR_INDEX``,
+    ``MIRROR_SIGN``): the same pose performed with the other side."""
+    return np.asarray(angles)[..., MIRROR_INDEX] * MIRROR_SIGN
 
 
 def load_mjmodel(path: str | Path | None = None) -> mujoco.MjModel:

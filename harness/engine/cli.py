@@ -26,7 +26,9 @@ def _train_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="database file to write (.npz)")
     p.add_argument("--classes", nargs="*", default=None, help="procedural primitives (default: all ten)")
     p.add_argument("--demos", type=int, default=8, help="demonstrations per class (one subject each)")
-    p.add_argument("--states", type=int, default=20, help="HMM states per primitive")
+    p.add_argument("--states", type=int, default=20, help="HMM states per primitive (per side)")
+    p.add_argument("--one-sided", action="store_true",
+                   help="without the mirror-image chains (the demonstrations' sides only)")
     p.add_argument("--seed", type=int, default=0, help="training seed")
     p.add_argument("--fps", type=float, default=30.0)
     p.add_argument("--capture-dir", default=None, help="learn from a capture set (directory with MANIFEST.csv) "
@@ -50,9 +52,11 @@ def train_database(args: argparse.Namespace) -> int:
         from harness.motion.performer import CLASSES, training_set
 
         motions = training_set(args.classes or CLASSES, args.demos, args.seed, args.fps)
-    db = MotionDatabase(n_states=args.states, cyclic=CYCLIC).fit(motions)
+    db = MotionDatabase(n_states=args.states, cyclic=CYCLIC, mirrored=not args.one_sided).fit(motions)
     db.save(args.out)
-    print(f"{args.out}: {len(db.classes_)} primitives x {args.states} states from {len(motions)} demonstrations")
+    sides = "one side" if args.one_sided else "both sides"
+    print(f"{args.out}: {len(db.classes_)} primitives x {args.states} states x {sides} from {len(motions)} "
+          "demonstrations")
     return 0
 
 

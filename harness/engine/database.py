@@ -6,6 +6,17 @@ Transitions go from a state to itself or to the next one (left-to-right); cyclic
 may also go from the last state back to the first. Training is Baum-Welch (hmmlearn) from several
 demonstrations, initialised by cutting every demonstration into ``K`` equal time segments, which keeps the
 states ordered in time and makes EM deterministic.
+
+**Both hands** (``mirrored``, the default). A demonstrator performs a one-sided primitive with one side, but a
+test performer may use the other, and the tracker's twin pose sees every body mirrored. So each primitive's
+HMM holds two chains of ``K`` states: chain A (states ``0..K-1``) is the HMM fitted on the demonstrations,
+chain B (states ``K..2K-1``) its exact mirror image, ``mean_B = M mean_A`` and ``covar_B = |M| covar_A`` with
+``M`` the features' mirror (``features.mirror_features``, a signed permutation), the same transitions within
+each chain and none between them, and half the start probability on each::
+
+    A = [[A_a, 0], [0, A_a]],    pi = [pi_a, pi_a] / 2
+
+Then ``p(M y_1:T | c) = p(y_1:T | c)`` for every feature sequence: the database is closed under the mirror.
 """
 
 from __future__ import annotations
@@ -18,7 +29,8 @@ from pathlib import Path
 import numpy as np
 from hmmlearn.hmm import GaussianHMM
 
-from harness.engine.features import ANGLE_RATES, ANGLES, BASE_ANGULAR, BASE_LINEAR, N_FEATURES, motion_features
+from harness.engine.features import (ANGLE_RATES, ANGLES, BASE_ANGULAR, BASE_LINEAR, N_FEATURES, mirror_features,
+                                     mirror_variances, motion_features)
 from harness.errors import EngineError
 from harness.io import save_npz_atomic
 from harness.motion.motion import Motion
@@ -53,17 +65,33 @@ def left_to_right(n_states: int, mean_dwell: float, cyclic: bool) -> np.ndarray:
     return a
 
 
+def mirror_chains(means: np.ndarray, covars: np.ndarray, transmat: np.ndarray, startprob: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Both-handed HMMs from one-sided ones (module docstring): means and variances ``(C, K, 106)``, transitions
+    ``(C, K, K)`` and start ``(C, K)`` become ``(C, 2K, 106)``, ``(C, 2K, 2K)`` block-diagonal and ``(C, 2K)``,
+    chain A as given and chain B its mirror image."""
+    C, K = startprob.shape
+    trans = np.zeros((C, 2 * K, 2 * K))
+    trans[:, :K, :K] = transmat
+    trans[:, K:, K:] = transmat
+    return (np.concatenate([means, mirror_features(means)], axis=1),
+            np.concatenate([covars, mirror_variances(covars)], axis=1), trans,
+            0.5 * np.concatenate([startprob, startprob], axis=1))
+
+
 class MotionDatabase:
     """One HMM per primitive over joint-space features.
 
     Hyperparameters: ``n_states`` (K), ``cyclic`` (names of primitives whose last state wraps to the first;
-    the data source knows them, e.g. ``harness.motion.performer.CYCLIC``), ``n_iter`` (Baum-Welch iterations).
+    the data source knows them, e.g. ``harness.motion.performer.CYCLIC``), ``n_iter`` (Baum-Welch iterations),
+    ``mirrored`` (each HMM also holds its mirror-image chain: ``S = 2K`` states, module docstring; else ``S = K``).
     Learned (after ``fit``): ``classes_`` (C,), ``cyclic_`` (C,) bool (whether each primitive's HMM wraps),
-    ``means_`` (C, K, 106), ``covars_`` (C, K, 106) diagonal variances, ``transmat_`` (C, K, K),
-    ``startprob_`` (C, K), ``fps_``.
+    ``means_`` (C, S, 106), ``covars_`` (C, S, 106) diagonal variances, ``transmat_`` (C, S, S),
+    ``startprob_`` (C, S), ``fps_``. Users of the HMMs take ``S`` from the arrays, not from ``n_states``.
     """
 
-    def __init__(self, n_states: int = DEFAULT_STATES, cyclic: Iterable[str] = (), n_iter: int = 15):
+    def __init__(self, n_states: int = DEFAULT_STATES, cyclic: Iterable[str] = (), n_iter: int = 15,
+                 mirrored: bool = True):
         if n_states < 2:
             raise EngineError(f"n_states must be >= 2, got {n_states}")
         if n_iter < 0:
@@ -71,6 +99,7 @@ class MotionDatabase:
         self.n_states = int(n_states)
         self.cyclic = tuple(cyclic)
         self.n_iter = int(n_iter)
+        self.mirrored = bool(mirrored)
 
     # --- learning -------------------------------------------------------------------------------
 
@@ -99,6 +128,8 @@ class MotionDatabase:
             covars[c] = np.maximum(np.diagonal(hmm.covars_, axis1=1, axis2=2), floor)
         self.classes_ = np.array(classes)
         self.cyclic_ = np.isin(self.classes_, list(self.cyclic))
+        if self.mirrored:
+            means, covars, trans, start = mirror_chains(means, covars, trans, start)
         self.means_, self.covars_, self.transmat_, self.startprob_ = means, covars, trans, start
         self.fps_ = float(fps.pop())
         return self
@@ -137,8 +168,17 @@ class MotionDatabase:
         self._check_fitted()
         return len(self.classes_)
 
+    @property
+    def n_chains(self) -> int:
+        """Chains of ``n_states`` states per primitive: 2 for a both-handed database, else 1."""
+        return 2 if self.mirrored else 1
+
+    def last_states(self) -> np.ndarray:
+        """Indices of each chain's last state (a non-cyclic primitive's end rest, absorbing)."""
+        return np.arange(1, self.n_chains + 1) * self.n_states - 1
+
     def log_emissions(self, features: np.ndarray) -> np.ndarray:
-        """Joint-space log densities ``(T, C, K)`` of features ``(T, 106)`` under every state."""
+        """Joint-space log densities ``(T, C, S)`` of features ``(T, 106)`` under every state."""
         self._check_fitted()
         f = np.asarray(features, dtype=float)
         if f.ndim != 2 or f.shape[1] != N_FEATURES:
@@ -156,7 +196,7 @@ class MotionDatabase:
             "format": np.array(_FORMAT), "classes": self.classes_.astype(str), "means": self.means_,
             "covars": self.covars_, "transmat": self.transmat_, "startprob": self.startprob_,
             "fps": np.array(self.fps_), "cyclic": np.array(self.cyclic, dtype=str),
-            "n_iter": np.array(self.n_iter),
+            "n_iter": np.array(self.n_iter), "mirrored": np.array(self.mirrored),
         }
 
     def save(self, path: str | Path) -> None:
@@ -168,8 +208,10 @@ class MotionDatabase:
             with np.load(path, allow_pickle=False) as z:
                 if str(z["format"]) != _FORMAT:
                     raise EngineError(f"{path}: not a motion database (format mismatch, expected {_FORMAT!r})")
-                db = cls(n_states=z["means"].shape[1], cyclic=[str(c) for c in z["cyclic"]],
-                         n_iter=int(z["n_iter"]))
+                # Files written before both-handed databases hold one chain.
+                mirrored = bool(z["mirrored"]) if "mirrored" in z.files else False
+                db = cls(n_states=z["means"].shape[1] // (2 if mirrored else 1), cyclic=[str(c) for c in z["cyclic"]],
+                         n_iter=int(z["n_iter"]), mirrored=mirrored)
                 db.classes_ = z["classes"].astype(str)
                 db.cyclic_ = np.isin(db.classes_, list(db.cyclic))
                 db.means_, db.covars_ = z["means"].astype(float), z["covars"].astype(float)
@@ -192,6 +234,8 @@ class MotionDatabase:
         """Check that the learned arrays agree in shape and are finite; raises EngineError naming the array."""
         self._check_fitted()
         C, K = len(self.classes_), self.means_.shape[1]
+        if K != self.n_chains * self.n_states:
+            raise EngineError(f"database means have {K} states, expected {self.n_chains} chains of {self.n_states}")
         expect = {"means": (C, K, N_FEATURES), "covars": (C, K, N_FEATURES), "transmat": (C, K, K),
                   "startprob": (C, K)}
         for name, shape in expect.items():

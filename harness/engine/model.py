@@ -50,6 +50,7 @@ class EngineModel:
 
     @property
     def n_states(self) -> int:
+        """States per primitive: every chain's (twice the database's ``n_states`` when it is both-handed)."""
         return self.db.means_.shape[1]
 
 

@@ -36,7 +36,7 @@ from harness import geometry
 from harness.body.grounding import ground
 from harness.body.model import BodyModel
 from harness.engine.database import MotionDatabase
-from harness.engine.features import ANGLE_RATES, ANGLES, BASE_ANGULAR
+from harness.engine.features import ANGLE_RATES, ANGLES, BASE_ANGULAR, mirror_features, mirror_variances
 from harness.errors import EngineError
 from harness.motion.motion import Motion
 
@@ -136,16 +136,6 @@ def generate_angles(means: np.ndarray, covars: np.ndarray, path: np.ndarray, fps
     return out
 
 
-def mirror_angles(body: BodyModel, angles: np.ndarray) -> np.ndarray:
-    """The same poses performed with the other side: left and right hinges swapped, ab/adduction (x) and twist
-    (z) angles negated."""
-    names = list(body.joint_names)
-    other = [names.index(("r" if n[0] == "l" else "l") + n[1:]) if n[0] in "lr" and
-             (("r" if n[0] == "l" else "l") + n[1:]) in names else i for i, n in enumerate(names)]
-    sign = np.array([-1.0 if n.endswith(("_x", "_z")) else 1.0 for n in names])
-    return np.asarray(angles)[..., other] * sign
-
-
 def reproduce(db: MotionDatabase, body: BodyModel, label: str, path: np.ndarray, fps: float, *,
               start_xy: np.ndarray | None = None, start_heading: float = 0.0, mirror: bool = False,
               angles: np.ndarray | None = None) -> Motion:
@@ -160,11 +150,13 @@ def reproduce(db: MotionDatabase, body: BodyModel, label: str, path: np.ndarray,
     if path.ndim != 2 or path.shape[1] != db.means_.shape[1] or len(path) < 2:
         raise EngineError(f"state path must be (T >= 2, {db.means_.shape[1]}), got {path.shape}")
     means = db.means_[c] if angles is None else adapt_means(db.means_[c], path, angles)
-    theta = generate_angles(means, db.covars_[c], path, fps)
-    omega = path @ means[:, BASE_ANGULAR]                              # (T, 3) base frame, rad/s
+    covars = db.covars_[c]
     if mirror:
-        theta = mirror_angles(body, theta)
-        omega = omega * np.array([-1.0, 1.0, -1.0])                   # roll and yaw rates change sides
+        # The mirrored states generate the mirrored motion: the generation is per angle and linear in the
+        # means, so a signed permutation of the states' features permutes and signs its output.
+        means, covars = mirror_features(means), mirror_variances(covars)
+    theta = generate_angles(means, covars, path, fps)
+    omega = path @ means[:, BASE_ANGULAR]                              # (T, 3) base frame, rad/s
     theta = np.clip(theta, body.lower, body.upper)
     quat = np.empty((len(path), 4))
     quat[0] = geometry.yaw(np.array(start_heading))
@@ -178,9 +170,13 @@ def reproduce(db: MotionDatabase, body: BodyModel, label: str, path: np.ndarray,
 
 
 def class_mean(db: MotionDatabase, body: BodyModel, label: str, n_frames: int, fps: float) -> Motion:
-    """The class's mean trajectory (the baseline): the generation along ``expected_path``, ``n_frames`` long."""
+    """The class's mean trajectory (the baseline): the generation along ``expected_path``, ``n_frames`` long,
+    through the first chain (the demonstrations' own side; a both-handed database's second chain mirrors it)."""
     c = _class_index(db, label)
-    return reproduce(db, body, label, expected_path(db.transmat_[c], n_frames), fps)
+    K = db.n_states
+    path = np.zeros((n_frames, db.means_.shape[1]))
+    path[:, :K] = expected_path(db.transmat_[c, :K, :K], n_frames)
+    return reproduce(db, body, label, path, fps)
 
 
 def recovered_world(body: BodyModel, qpos_cam: np.ndarray, gravity: np.ndarray | None = None) -> np.ndarray:

@@ -3,8 +3,9 @@
 ``Scorer`` binds the engine's model (database, body, model points) to its settings, so that a stage asks one
 question of one frame: project these distributions at these poses (with the body's self-occlusion and the
 camera's own motion), score the flows under them (with the open region's held points: negative evidence),
-temper a frame's sum, or fold a frame into a recognizer at a pose. ``path_evidence`` is the evidence a track
-that followed a given pose path would gather; ``floor_log_prior`` the camera prior's floor term.
+temper a frame's sum, or fold a frame into a recognizer at a pose. ``path_recognition`` is what a track that
+followed a given pose path would gather (its evidence, ``path_evidence``, and its class posteriors);
+``floor_log_prior`` the camera prior's floor term.
 """
 
 from __future__ import annotations
@@ -99,19 +100,28 @@ def floor_log_prior(points: np.ndarray, quats: np.ndarray, positions: np.ndarray
     return np.logaddexp(log_ground, log_flight)
 
 
-def path_evidence(model: EngineModel, config: TrackerConfig, obs: Observation, positions: np.ndarray,
-                  quats: np.ndarray) -> np.ndarray:
-    """``(T,)`` per-frame evidence ``log p(y_t | y_<t, path)`` of a given base pose path ``(T, 3)``, ``(T, 4)``
-    (camera frame): what a track that followed exactly this path would accumulate."""
+def path_recognition(model: EngineModel, config: TrackerConfig, obs: Observation, positions: np.ndarray,
+                     quats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The recognition of a track that followed exactly a given base pose path ``(T, 3)``, ``(T, 4)`` (camera
+    frame): its per-frame evidence ``log p(y_t | y_<t, path)`` ``(T,)`` and class posteriors ``(T, C)`` (before
+    the first flows, the uniform prior)."""
     scorer = Scorer(model, config)
     rec = Recognizer(model.db, config.start_spread, config.prune)
-    out = np.zeros(len(obs))
+    evidence = np.zeros(len(obs))
+    posteriors = np.empty((len(obs), model.n_classes))
     started = False
     for frame in observation_frames(obs, config):
-        if not started and not frame.has_flows:
-            continue
-        rec.predict()       # a no-op before the first update
-        started = True
         t = frame.index
-        out[t] = scorer.recognise(frame, rec, positions[t], quats[t])
-    return out
+        if started or frame.has_flows:
+            rec.predict()       # a no-op before the first update
+            started = True
+            evidence[t] = scorer.recognise(frame, rec, positions[t], quats[t])
+        posteriors[t] = rec.class_posterior
+    return evidence, posteriors
+
+
+def path_evidence(model: EngineModel, config: TrackerConfig, obs: Observation, positions: np.ndarray,
+                  quats: np.ndarray) -> np.ndarray:
+    """``(T,)`` per-frame evidence ``log p(y_t | y_<t, path)`` of a given base pose path (``path_recognition``):
+    what a track that followed exactly this path would accumulate."""
+    return path_recognition(model, config, obs, positions, quats)[0]

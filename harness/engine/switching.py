@@ -13,10 +13,11 @@ Every row sums to one, so the forward recursion ``alpha_t ∝ b_t * (alpha_{t-1}
 only the prediction differs). The choices, with ``s`` the engine setting ``primitive_switch``:
 
 - **exit states**: a non-cyclic primitive is left from its last state (its end rest; the left-to-right HMM of
-  ``MotionDatabase`` makes that state absorbing), ``e_c(K-1) = s``; a cyclic one (``db.cyclic_``: walk, run,
-  ...) from any state, ``e_c(j) = s``, since a performer stops a gait anywhere in its cycle (leaving after a
-  full cycle, from the last state, is one of these). ``s`` is the per-frame probability of a primitive change
-  from an exit state; for procedural streams it is one over their mean primitive duration in frames
+  ``MotionDatabase`` makes that state absorbing), ``e_c(K-1) = s`` (each chain's last state in a both-handed
+  database); a cyclic one (``db.cyclic_``: walk, run, ...) from any state, ``e_c(j) = s``, since a performer
+  stops a gait anywhere in its cycle (leaving after a full cycle, from the last state, is one of these). ``s``
+  is the per-frame probability of a primitive change from an exit state; for procedural streams it is one over
+  their mean primitive duration in frames
   (``docs/streams.md``; the recognition measured on development streams hardly depends on it).
 - **next primitive**: any primitive, uniformly, the same one included (a performer repeats squats):
   ``P[c, c'] = 1 / C``.
@@ -47,7 +48,7 @@ def exit_states(db: MotionDatabase) -> np.ndarray:
     """``(C, K)`` bool: the states a primitive may be left from (see the module docstring)."""
     C, K = db.startprob_.shape
     out = np.zeros((C, K), dtype=bool)
-    out[:, -1] = True
+    out[:, db.last_states()] = True                 # the end rest of each chain (both sides, see database)
     out[db.cyclic_] = True
     return out
 

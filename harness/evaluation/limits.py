@@ -60,10 +60,11 @@ def run_bytes(config) -> dict[str, int]:
     flows_per_frame = markers * (1.0 + obs.outliers)
     n_classes = len(config.database.classes or ()) or 10
     hypotheses = eng.particles * max(eng.init_factor, eng.weigh_classes)
+    states = config.database.states * (2 if config.database.mirrored else 1)    # a chain per side
     out = {
         "process": PROCESS_BYTES,
         "engine": HYPOTHESIS_POINT_BYTES * hypotheses * eng.model_points + 8 * hypotheses * int(flows_per_frame),
-        "database": STATE_POINT_BYTES * n_classes * config.database.states * eng.model_points,
+        "database": STATE_POINT_BYTES * n_classes * states * eng.model_points,
         "scene": MARKER_FRAME_BYTES * frames * markers + int(FLOW_BYTES * frames * flows_per_frame),
         "open_region": 24 * math.ceil(cam.width / eng.open_cell_px) * math.ceil(cam.height / eng.open_cell_px),
         "rendered": RENDER_PIXEL_BYTES * cam.width * cam.height if obs.mode == "rendered" else 0,

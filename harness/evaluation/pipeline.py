@@ -83,7 +83,7 @@ def test_stream(run: RunSpec) -> Stream | None:
     return procedural_stream(named_generator(run.seed, "motion"), classes=cfg.classes, primitives=stream.primitives,
                              transition_s=stream.transition_s, fps=cfg.database.fps,
                              subject=TEST_SUBJECT_OFFSET + run.test_demo, body=nominal_body(),
-                             demo=str(run.test_demo))
+                             demo=str(run.test_demo), left=cfg.test.left)
 
 
 def test_motion(run: RunSpec) -> Motion:
@@ -100,7 +100,7 @@ def test_motion(run: RunSpec) -> Motion:
             raise RunError(f"run {run.key}: class {run.test_class!r} has {len(demos)} capture demos")
         return motions[demos[run.test_demo]]
     return demonstrations(run.test_class, 1, named_generator(run.seed, "motion"), fps=cfg.database.fps,
-                          subject=TEST_SUBJECT_OFFSET + run.test_demo, body=nominal_body())[0]
+                          subject=TEST_SUBJECT_OFFSET + run.test_demo, body=nominal_body(), left=cfg.test.left)[0]
 
 
 def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
@@ -141,10 +141,10 @@ def training_identity(motion: Motion) -> dict:
 
 def database_key(cfg: Scenario, training: list[Motion]) -> dict:
     """What a database depends on (its cache key): the identities of its training motions, the HMM settings
-    and the code version."""
+    (states, cyclic classes, both-handed or not) and the code version."""
     db = cfg.database
-    return {"states": db.states, "cyclic": list(CYCLIC), "format": DATABASE_FORMAT, "code": code_version(),
-            "training": [training_identity(m) for m in training]}
+    return {"states": db.states, "cyclic": list(CYCLIC), "mirrored": db.mirrored, "format": DATABASE_FORMAT,
+            "code": code_version(), "training": [training_identity(m) for m in training]}
 
 
 @lru_cache(maxsize=8)
@@ -158,7 +158,8 @@ def database(cfg: Scenario, test: Motion | None, cache_dir: str | Path) -> tuple
     path = path_for_key(Path(cache_dir) / "databases", database_key(cfg, training))
 
     def build():
-        return MotionDatabase(n_states=cfg.database.states, cyclic=CYCLIC).fit(training)
+        return MotionDatabase(n_states=cfg.database.states, cyclic=CYCLIC,
+                              mirrored=cfg.database.mirrored).fit(training)
 
     cached(path, build, lambda obj, fh: np.savez(fh, **obj.to_arrays()), lambda p: None)
     return _stored_database(str(path)), str(path)

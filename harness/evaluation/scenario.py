@@ -74,7 +74,8 @@ class DatabaseConfig(_Section):
     manifest: str = "MANIFEST.csv"          # capture only; a path inside capture_dir
     classes: tuple[str, ...] | None = None  # default: all procedural classes / the manifest's classes
     train_demos: int = Field(8, ge=1, le=1000)   # demonstrations per class (procedural)
-    states: int = Field(20, ge=2, le=500)   # HMM states per primitive
+    states: int = Field(20, ge=2, le=500)   # HMM states per primitive (per side)
+    mirrored: bool = True                   # both-handed: each HMM also holds its mirror-image chain
     seed: int = Field(0, ge=0)              # training seed (demo generation and HMM initialisation)
     fps: float = Field(30.0, gt=0, le=1000)  # frames per second of training and test motions
     with_captures: bool = False             # procedural, test.split captures: also train on the capture demos
@@ -136,6 +137,9 @@ class SplitConfig(_Section):
     demos_per_class: int = Field(2, ge=1, le=1000)  # procedural: held-out demos per class
     split: Literal["heldout", "captures", "leave_one_out", "cross_subject", "all"] = "heldout"
     stream: StreamConfig | None = None
+    # procedural: the share of test performances of every primitive that are left-sided (None: each primitive's
+    # calibrated share); the database's demonstrations keep theirs
+    left: float | None = Field(None, ge=0.0, le=1.0)
 
 
 # --- sections generated from the scene's spec types and the engine's TrackerConfig ------------------------
@@ -295,6 +299,9 @@ class Scenario(_Section):
                              f"{self.database.source!r} (valid: {valid})")
         if not self.methods:
             raise ValueError("methods: empty list")
+        if self.test.left is not None and not (procedural and self.test.split == "heldout"):
+            raise ValueError(f"test.left: only procedural test performances choose a side (test.split 'heldout'), "
+                             f"got test.split {self.test.split!r}")
         if self.database.with_captures and self.test.split != "captures":
             raise ValueError("database.with_captures: needs test.split 'captures' (a procedural database tested "
                              "on captures)")

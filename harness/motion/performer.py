@@ -199,20 +199,24 @@ def place_base(body: BodyModel, angles: np.ndarray, quat: np.ndarray, flight: np
 
 
 def perform(label: str, rng: np.random.Generator, fps: float = 30.0, subject: int | None = None,
-            body: BodyModel | None = None, demo: str = "0", calibration: ClassCalibration | None = None
-            ) -> tuple[Motion, np.ndarray]:
+            body: BodyModel | None = None, demo: str = "0", calibration: ClassCalibration | None = None,
+            left: float | None = None) -> tuple[Motion, np.ndarray]:
     """One demonstration of ``label`` (see ``demonstrations``) and its airborne frames ``(T,)`` bool.
 
     The airborne mask says which frames the primitive planned off the ground (both feet in the air); in all
     other frames the lowest foot point is on the floor. Useful as contact labels and for checks.
     ``calibration``: the class's calibration (default: the shipped table's, ``calibration.NEUTRAL`` for a
-    class it lacks); ``NEUTRAL`` plays the primitive as written.
+    class it lacks); ``NEUTRAL`` plays the primitive as written. ``left``: the left share in [0, 1] to use
+    instead of the calibration's (1: left-sided whatever the subject, 0: right-sided).
     """
     fn = lookup(label)
     if not (np.isfinite(fps) and fps > 0):
         raise PerformerError(f"fps must be positive, got {fps}")
     body = nominal_body() if body is None else body
     cal = default_calibration().get(label, NEUTRAL) if calibration is None else calibration
+    if left is not None and not 0.0 <= left <= 1.0:
+        raise PerformerError(f"left share must be in [0, 1], got {left}")
+    left = cal.left if left is None else left
     if subject is None:
         subject = int(rng.integers(0, 1000))
     style = subject_style(subject)
@@ -224,7 +228,7 @@ def perform(label: str, rng: np.random.Generator, fps: float = 30.0, subject: in
                 limits=(np.rad2deg(body.lower), np.rad2deg(body.upper)), gain=cal.gain, extent=cal.extent,
                 roll=cal.lean[1], lean_gain=tuple(cal.lean_gain))
     plan: Plan = fn(take)
-    if style.laterality < cal.left:
+    if style.laterality < left:
         plan = mirror(plan)
     angles = soft_clip(np.deg2rad(plan.angles), body.lower, body.upper)
     ypr = np.deg2rad(np.column_stack([plan.yaw, plan.pitch, plan.roll]))
@@ -266,17 +270,18 @@ def guarantee_violations(motion: Motion, body: BodyModel | None = None, margin: 
 
 def demonstrations(label: str, n: int, rng: np.random.Generator, fps: float = 30.0,
                    subject: int | None = None, body: BodyModel | None = None,
-                   calibration: ClassCalibration | None = None) -> list[Motion]:
+                   calibration: ClassCalibration | None = None, left: float | None = None) -> list[Motion]:
     """``n`` demonstrations of the primitive ``label`` (one of ``CLASSES``), as ``Motion``s at ``fps``.
 
     Each is drawn from ``rng`` in turn (same generator state, bit-identical output). ``subject`` fixes the
     performer's style; ``None`` draws a subject id in [0, 1000) per demonstration. Demo ids are "0".."n-1".
-    ``calibration``: see ``perform``.
+    ``calibration``, ``left``: see ``perform``.
     """
     lookup(label)
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
         raise PerformerError(f"number of demonstrations must be a non-negative integer, got {n!r}")
-    return [perform(label, rng, fps, subject, body, demo=str(i), calibration=calibration)[0] for i in range(n)]
+    return [perform(label, rng, fps, subject, body, demo=str(i), calibration=calibration, left=left)[0]
+            for i in range(n)]
 
 
 if set(CLASSES) != set(registered()):      # a primitive added to the repertoire must be named here too

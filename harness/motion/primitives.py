@@ -24,16 +24,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from harness.body.model import JOINT_NAMES, N_ANGLES
+from harness.body.model import JOINT_NAMES, N_ANGLES, mirror_angles
 from harness.errors import HarnessError
 
 _INDEX = {name: i for i, name in enumerate(JOINT_NAMES)}
-# Mirror image through the sagittal (x-z) plane: left and right joints swap, and every x (ab/adduction,
-# side bend) and z (twist) angle changes sign; y (flexion) angles keep theirs.
-_SIDED = ("clavicle", "humerus", "radius", "wrist", "hand", "femur", "tibia", "foot", "toes")
-_MIRROR_INDEX = np.array([_INDEX[{"l": "r", "r": "l"}[n[0]] + n[1:] if n[1:].split("_")[0] in _SIDED else n]
-                          for n in JOINT_NAMES])
-_MIRROR_SIGN = np.array([-1.0 if n.endswith(("_x", "_z")) else 1.0 for n in JOINT_NAMES])
 
 
 class PerformerError(HarnessError):
@@ -203,11 +197,6 @@ def soft_clip(angles: np.ndarray, lower: np.ndarray, upper: np.ndarray, margin: 
     hi, lo = upper - m, lower + m
     out = np.where(angles > hi, hi + m * np.tanh((angles - hi) / m), angles)
     return np.where(out < lo, lo + m * np.tanh((out - lo) / m), out)
-
-
-def mirror_angles(angles: np.ndarray) -> np.ndarray:
-    """Joint angles ``(..., 50)`` (any unit) of the mirror-image pose: left and right swapped, x and z negated."""
-    return np.asarray(angles)[..., _MIRROR_INDEX] * _MIRROR_SIGN
 
 
 def mirror(plan: Plan) -> Plan:

@@ -46,11 +46,10 @@ import numpy as np
 from scipy.stats import wasserstein_distance
 
 from harness import geometry
-from harness.body.model import JOINT_NAMES, N_ANGLES
+from harness.body.model import JOINT_NAMES, N_ANGLES, mirror_angles
 from harness.motion.calibration import DEFAULT_LEFT, ClassCalibration
 from harness.motion.motion import Motion
 from harness.motion.performer import CLASSES, demonstrations, guarantee_violations
-from harness.motion.primitives import mirror_angles
 
 #: What tells which side performed a one-sided primitive: a joint (without its side prefix) and a score of
 #: its anatomical angle over time (degrees, right x/z angles negated); the side with the higher score acted.

@@ -215,11 +215,11 @@ def _blend(body: BodyModel, a: _Part, b: _Part, window: int, start_xy: np.ndarra
 def procedural_stream(rng: np.random.Generator, classes: tuple[str, ...] | list[str] | None = None,
                       primitives: tuple[int, int] = PRIMITIVES, transition_s: tuple[float, float] = TRANSITION_S,
                       fps: float = 30.0, subject: int | None = None, body: BodyModel | None = None,
-                      demo: str = "0") -> Stream:
+                      demo: str = "0", left: float | None = None) -> Stream:
     """A random stream of ``primitives[0]..primitives[1]`` primitives drawn from ``classes`` (default: all
     of the performer's), performed by ``subject`` (default: drawn in [0, 1000)); see the module docstring.
     Everything is drawn from ``rng`` in a fixed order: count, order, subject, then per primitive its
-    demonstration and per transition its length."""
+    demonstration and per transition its length. ``left``: every primitive's left share (``performer.perform``)."""
     classes = tuple(CLASSES if classes is None else classes)
     lo, hi = primitives
     if not (isinstance(lo, (int, np.integer)) and isinstance(hi, (int, np.integer)) and 2 <= lo <= hi):
@@ -238,7 +238,7 @@ def procedural_stream(rng: np.random.Generator, classes: tuple[str, ...] | list[
         subject = int(rng.integers(0, 1000))
     motions, windows = [], []
     for i, label in enumerate(order):
-        motions.append(demonstrations(label, 1, rng, fps=fps, subject=subject, body=body)[0])
+        motions.append(demonstrations(label, 1, rng, fps=fps, subject=subject, body=body, left=left)[0])
         if i:
             windows.append(int(round(rng.uniform(t_lo, t_hi) * fps)))
     return join(motions, windows, body, demo)
