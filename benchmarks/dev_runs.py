@@ -8,7 +8,8 @@ import argparse
 
 def add_arguments(ap: argparse.ArgumentParser, seed: int | None = None) -> None:
     ap.add_argument("--scenario", default="scenarios/default.yaml")
-    ap.add_argument("--seed", type=int, default=seed, help="replace the scenario's seed")
+    ap.add_argument("--seed", type=int, nargs="*", default=None if seed is None else [seed],
+                    help="replace the scenario's seed (several: the runs of each)")
     ap.add_argument("--amount", type=float, nargs="*", default=[0.0, 0.4],
                     help="occlusion amounts (conditions of the scenario's occluders.amount sweep)")
     ap.add_argument("--limit", type=int, default=None, help="runs per condition")
@@ -18,19 +19,18 @@ def add_arguments(ap: argparse.ArgumentParser, seed: int | None = None) -> None:
 
 
 def selected(args: argparse.Namespace) -> list:
-    """The planned runs ``args`` select (``add_arguments``)."""
+    """The planned runs ``args`` select (``add_arguments``); a run's ``seed`` tells runs of several seeds apart."""
     from harness.evaluation.runner import plan
     from harness.evaluation.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
-    if args.seed is not None:
-        scenario = scenario.model_copy(update={"seed": args.seed})
-    runs = [r for r in plan(scenario, args.cache)
+    seeded = [scenario.model_copy(update={"seed": s}) for s in args.seed] if args.seed else [scenario]
+    runs = [r for sc in seeded for r in plan(sc, args.cache)
             if dict(r.swept).get("occluders.amount", r.config.occluders.amount) in args.amount]
     if args.limit:
         by_cond: dict = {}
         for r in runs:
-            by_cond.setdefault(r.condition, []).append(r)
+            by_cond.setdefault((r.config.seed, r.condition), []).append(r)
         runs = [r for rs in by_cond.values() for r in rs[:args.limit]]
     return runs
 

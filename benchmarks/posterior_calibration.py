@@ -1,6 +1,6 @@
 """Fit the class posterior's calibration (temperature, floor) on development runs and score it.
 
-    MUJOCO_GL=egl python benchmarks/posterior_calibration.py [--seed 101] [--amount 0.0 0.4] [--limit N]
+    MUJOCO_GL=egl python benchmarks/posterior_calibration.py [--seed 101 102] [--amount 0.0 0.4] [--limit N]
         [--jobs 2] [--rows rows.jsonl] [--check TEMPERATURE FLOOR] [--set KEY=VALUE ...]
 
 Runs the engine (the ``full`` method) on a scenario's runs (default: the default scenario on development seed
@@ -34,7 +34,7 @@ def _one(job) -> dict:
     inputs = pipeline.run_inputs(run)
     est = dev_runs.tracker_for(inputs, overrides).run(inputs.obs)
     classes = [str(c) for c in est.classes]
-    return {"key": run.key, "condition": run.condition_label, "class": run.test_class, "classes": classes,
+    return {"key": f"{run.seed}/{run.key}", "condition": run.condition_label, "class": run.test_class, "classes": classes,
             "log_posterior": [float(v) if np.isfinite(v) else -1e300 for v in est.raw_log_posterior[-1]]}
 
 
@@ -66,7 +66,7 @@ def main() -> None:
     done = {}
     if args.rows and Path(args.rows).exists():
         done = {r["key"]: r for r in map(json.loads, Path(args.rows).read_text().splitlines()) if r}
-    todo = [r for r in runs if r.key not in done]
+    todo = [r for r in runs if f"{r.seed}/{r.key}" not in done]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
         for i, row in enumerate(pool.map(_one, [(r, overrides) for r in todo])):
@@ -76,7 +76,7 @@ def main() -> None:
                     f.write(json.dumps(row) + "\n")
             print(f"\r{i + 1}/{len(todo)} runs, {time.perf_counter() - t0:.0f} s", end="", flush=True)
     print()
-    rows = [done[r.key] for r in runs]
+    rows = [done[f"{r.seed}/{r.key}"] for r in runs]
     log_post = np.array([r["log_posterior"] for r in rows])
     true = np.array([r["classes"].index(r["class"]) for r in rows])
     conditions = np.array([r["condition"] for r in rows])
