@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
+
 
 def add_arguments(ap: argparse.ArgumentParser, seed: int | None = None) -> None:
     ap.add_argument("--scenario", default="scenarios/default.yaml")
@@ -18,8 +20,9 @@ def add_arguments(ap: argparse.ArgumentParser, seed: int | None = None) -> None:
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="engine settings to use instead")
 
 
-def selected(args: argparse.Namespace) -> list:
-    """The planned runs ``args`` select (``add_arguments``); a run's ``seed`` tells runs of several seeds apart."""
+def selected(args: argparse.Namespace, pick: np.random.Generator | None = None) -> list:
+    """The planned runs ``args`` select (``add_arguments``); a run's ``seed`` tells runs of several seeds apart.
+    With ``--limit``, the first runs of each condition, or with ``pick`` that many drawn from it (in key order)."""
     from harness.evaluation.runner import plan
     from harness.evaluation.scenario import load_scenario
 
@@ -31,7 +34,12 @@ def selected(args: argparse.Namespace) -> list:
         by_cond: dict = {}
         for r in runs:
             by_cond.setdefault((r.config.seed, r.condition), []).append(r)
-        runs = [r for rs in by_cond.values() for r in rs[:args.limit]]
+        if pick is None:
+            runs = [r for rs in by_cond.values() for r in rs[:args.limit]]
+        else:
+            runs = [r for rs in by_cond.values() for r in
+                    sorted((rs[i] for i in pick.choice(len(rs), min(args.limit, len(rs)), replace=False)),
+                           key=lambda r: r.key)]
     return runs
 
 

@@ -26,6 +26,8 @@ from multiprocessing import get_context
 
 import numpy as np
 
+import dev_runs
+
 ALTERNATIVES = ("turn+90", "turn180", "turn-90", "twin", "twin_upright")
 
 
@@ -56,33 +58,11 @@ def _one(job) -> dict:
 
 def main() -> None:
     from harness.engine.config import settings_from_strings
-    from harness.evaluation.runner import plan
-    from harness.evaluation.scenario import load_scenario
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenario", default="scenarios/default.yaml")
-    ap.add_argument("--seed", type=int, default=None, help="replace the scenario's seed")
-    ap.add_argument("--amount", type=float, nargs="*", default=[0.0, 0.4],
-                    help="occlusion amounts (conditions of the scenario's occluders.amount sweep)")
-    ap.add_argument("--limit", type=int, default=None, help="runs per condition")
-    ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--cache", default="results/cache")
-    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
-                    help="engine settings (TrackerConfig fields) to use instead of the scenario's")
+    dev_runs.add_arguments(ap)
     args = ap.parse_args()
-    scenario = load_scenario(args.scenario)
-    if args.seed is not None:
-        scenario = scenario.model_copy(update={"seed": args.seed})
-    runs = [r for r in plan(scenario, args.cache)
-            if dict(r.swept).get("occluders.amount", r.config.occluders.amount) in args.amount]
-    if args.limit:
-        by_cond: dict = {}
-        for r in runs:
-            by_cond.setdefault(r.condition, []).append(r)
-        pick = np.random.default_rng(0)
-        runs = [r for rs in by_cond.values() for r in
-                sorted((rs[i] for i in pick.choice(len(rs), min(args.limit, len(rs)), replace=False)),
-                       key=lambda r: r.key)]
+    runs = dev_runs.selected(args, pick=np.random.default_rng(0))
     overrides = settings_from_strings(args.set)
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:

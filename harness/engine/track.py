@@ -73,7 +73,8 @@ class Track:
     id: unique within a sequence; origin: how it was spawned (``lead``, ``turn+90``, ``turn180``, ``turn-90``,
     ``twin``, ``given``; prefixed ``walk/`` for a track of one primitive); primitive: the one primitive the track
     hypothesises (its belief is restricted to it), or None for a belief over all; family: the id shared by
-    depth siblings spawned from one cloud at several depths (None: no siblings); recognizer: its belief; cloud: its particles (None when the pose is given);
+    depth siblings spawned from one cloud at several depths (None: no siblings); recognizer: its belief;
+    cloud: its particles (None when the pose is given);
     log_evidence: tempered nats since the first frame with flows; pose: this frame's filter estimate
     ``(position (3,), quaternion (4,))`` and pose_std ``(3,)`` the position std recovery may use around it;
     recovery: what recovery found this frame (the next proposal is guided by it when it was refined).
