@@ -12,7 +12,7 @@ from engine_fixtures import CLASSES, synthetic_demos
 from harness import geometry
 from harness.body import forward_points, sample_surface
 from harness.engine import MotionDatabase, Recognizer, motion_features, recognize_features
-from harness.engine.likelihood import FlowModel, flow_log_likelihoods, responsibilities, tempered
+from harness.engine.likelihood import _exp, FlowModel, flow_log_likelihoods, responsibilities, tempered
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
                                             motion_mean, propose, systematic_resample, upright_orientations)
 from harness.engine.recovery import Prior, refine_pose
@@ -153,6 +153,19 @@ def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations,
     vmax = 0.25 * 640 * fps
     np.testing.assert_allclose(flow_log_likelihoods(flows, none, FlowModel(noise, fps, W, Hh, eps)),
                                np.log(eps / (W * Hh * np.pi * vmax**2)))
+
+
+def test_the_kernels_exponential_matches_numpys():
+    """The likelihood kernel's own (vectorising) exponential: relative error near machine precision over the
+    range of normal doubles, exactly zero below it and at minus infinity."""
+    x = np.concatenate([np.linspace(-708.0, 709.0, 200001), [-0.0, 0.0, 1e-300, -1e-300]])
+    out, bits = np.empty_like(x), np.empty(len(x), dtype=np.int64)
+    _exp(x, out, bits)
+    np.testing.assert_allclose(out, np.exp(x), rtol=1e-13)
+    low = np.array([-708.5, -745.0, -1e5, -np.inf])
+    out, bits = np.empty_like(low), np.empty(len(low), dtype=np.int64)
+    _exp(low, out, bits)
+    assert out.tolist() == [0.0, 0.0, 0.0, 0.0]
 
 
 def test_tempering_counts_a_frame_as_at_most_n_eff_flows():

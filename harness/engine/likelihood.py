@@ -31,104 +31,145 @@ from harness.engine.transform import ImageDistributions
 
 _GATE = 60.0   # squared Mahalanobis distance in position beyond which a point's term is taken as zero
 
+# The kernels may reorder sums and fuse multiply-adds, so that their loops run on vector registers; they make no
+# assumption about NaN or infinity (results agree with the brute-force rule to about 1e-14, relative).
+_FAST = {"reassoc", "contract", "arcp", "nsz"}
+_LN2_HI = 6.93147180369123816490e-01       # ln 2 split in two for an exact range reduction (Cody and Waite)
+_LN2_LO = 1.90821492927058770002e-10
+_INV_LN2 = 1.44269504088896338700e+00
+_EXP_MIN = -708.0                          # below this, exp is not a normal double: taken as zero
+_TWO_PI_SQUARED = (2.0 * np.pi) ** 2
 
-@numba.njit(cache=True)
-def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, rows, cols, vals):
-    """The non-zero Gaussian densities of flows under the points of one hypothesis (position and velocity,
-    the observation noise ``pos_var``/``vel_var`` added to each covariance): ``vals[k]`` for flow ``rows[k]``
-    and point ``cols[k]``; a pair beyond the position gate, or an invisible point, has none. Returns the count.
 
-    ``flows`` are sorted by ``u``: a pair within the gate has ``du^2 <= gate * S_uu`` (the Mahalanobis distance
-    is at least that of ``u`` alone), so each point scans only the flows in that band of columns."""
+@numba.njit(cache=True, fastmath=_FAST)
+def _exp(x, out, bits):
+    """``out[i] = exp(x[i])`` (zero below ``_EXP_MIN``, arguments above 709 clipped), element-wise, in a form
+    that vectorises (libm's ``exp`` does not): ``exp(x) = 2^k exp(r)`` with ``k = round(x / ln 2)``,
+    ``|r| <= ln(2) / 2``, ``exp(r)`` by its Taylor polynomial of degree 13 (truncation below 1e-17) and ``2^k``
+    built in the exponent bits. ``bits``: int64 work array of the same length."""
+    n = len(x)
+    for i in range(n):
+        xi = min(max(x[i], _EXP_MIN), 709.0)
+        k = np.floor(xi * _INV_LN2 + 0.5)
+        r = (xi - k * _LN2_HI) - k * _LN2_LO
+        out[i] = 1.0 + r * (1.0 + r * (1 / 2 + r * (1 / 6 + r * (1 / 24 + r * (1 / 120 + r * (1 / 720 + r * (
+            1 / 5040 + r * (1 / 40320 + r * (1 / 362880 + r * (1 / 3628800 + r * (1 / 39916800 + r * (
+                1 / 479001600 + r * (1 / 6227020800)))))))))))))
+        bits[i] = (np.int64(k) + 1023) << 52
+    scale = bits.view(np.float64)
+    for i in range(n):
+        out[i] = out[i] * scale[i] if x[i] >= _EXP_MIN else 0.0
+
+
+@numba.njit(cache=True, fastmath=_FAST)
+def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, points, dens, arg, bits):
+    """The Gaussian densities of the flows (``(4, M)`` columns) under the visible points of one hypothesis
+    (position and velocity, the observation noise ``pos_var``/``vel_var`` added to each covariance):
+    ``dens[i, m]`` for visible point ``i`` (model point ``points[i]``), zero beyond the position gate. Returns
+    the number of visible points; ``arg``, ``bits``: work arrays of ``M``.
+
+    Every flow is scored against every visible point in one dense pass that vectorises: with a few dozen flows
+    a band of them per point (the flows sorted by ``u``) saves less than its bookkeeping costs."""
     P = pix.shape[0]
-    us = flows[:, 0]
+    M = flows.shape[1]
+    us, vs, dus, dvs = flows[0], flows[1], flows[2], flows[3]
     n = 0
     for p in range(P):
         if visibility[p] <= 0.0:
             continue
         a, b, c = pix_cov[p, 0, 0] + pos_var, pix_cov[p, 0, 1], pix_cov[p, 1, 1] + pos_var
-        det_p = a * c - b * b
-        ia, ib, ic = c / det_p, -b / det_p, a / det_p
+        inv_det_p = 1.0 / (a * c - b * b)
+        ia, ib, ic = c * inv_det_p, -b * inv_det_p, a * inv_det_p
         fa, fb, fc = flow_cov[p, 0, 0] + vel_var, flow_cov[p, 0, 1], flow_cov[p, 1, 1] + vel_var
-        det_f = fa * fc - fb * fb
-        ja, jb, jc = fc / det_f, -fb / det_f, fa / det_f
-        log_norm = -2.0 * np.log(2.0 * np.pi) - 0.5 * (np.log(det_p) + np.log(det_f))
+        inv_det_f = 1.0 / (fa * fc - fb * fb)
+        ja, jb, jc = fc * inv_det_f, -fb * inv_det_f, fa * inv_det_f
+        norm = np.sqrt(inv_det_p * inv_det_f) / _TWO_PI_SQUARED
         u0, v0, du0, dv0 = pix[p, 0], pix[p, 1], flow[p, 0], flow[p, 1]
-        reach = np.sqrt(_GATE * a)
-        for m in range(np.searchsorted(us, u0 - reach), np.searchsorted(us, u0 + reach, side="right")):
-            x = flows[m, 0] - u0
-            y = flows[m, 1] - v0
+        for m in range(M):
+            x = us[m] - u0
+            y = vs[m] - v0
             d2 = ia * x * x + 2.0 * ib * x * y + ic * y * y
-            if d2 > _GATE:
-                continue
-            x = flows[m, 2] - du0
-            y = flows[m, 3] - dv0
-            d2 += ja * x * x + 2.0 * jb * x * y + jc * y * y
-            rows[n] = m
-            cols[n] = p
-            vals[n] = np.exp(log_norm - 0.5 * d2)
-            n += 1
+            x = dus[m] - du0
+            y = dvs[m] - dv0
+            e = -0.5 * (d2 + ja * x * x + 2.0 * jb * x * y + jc * y * y)
+            arg[m] = e if d2 <= _GATE else -np.inf
+        row = dens[n]
+        _exp(arg, row, bits)
+        for m in range(M):
+            row[m] *= norm
+        points[n] = p
+        n += 1
     return n
 
 
-@numba.njit(cache=True)
-def _mixture(rows, cols, vals, n, visibility, held, p_in, p_out, iterations, smoothing, weight, mass, total):
-    """The points' mixture weights and each flow's inlier density ``total[m] = sum_p w_p N_mp``.
+@numba.njit(cache=True, fastmath=_FAST)
+def _mixture(dens, points, n, visibility, held, p_in, p_out, iterations, smoothing, weight, total, inv):
+    """The visible points' mixture weights ``weight[:n]`` and each flow's inlier density
+    ``total[m] = sum_i w_i N_mi``.
 
     The weights start from the visibility (normalised) and are adapted by ``iterations`` EM steps to the
     flows, shrunk towards that prior by ``smoothing`` pseudo-flows: points that explain no flow (hidden by an
     obstacle the engine cannot know of) give their mass to the points that do. Points that are ``held`` (they
     lie where flows have appeared recently, so no obstacle hides them) keep their prior proportions and share
-    what the free points leave: a held point without flows keeps its weight, and the hypothesis pays for it."""
-    P = len(visibility)
+    what the free points leave: a held point without flows keeps its weight, and the hypothesis pays for it.
+    ``inv``: work array of ``M``."""
     norm = 0.0
     held_prior = 0.0
-    for p in range(P):
-        norm += visibility[p]
-        if held[p]:
-            held_prior += visibility[p]
-    for p in range(P):
-        weight[p] = visibility[p] / norm
+    for i in range(n):
+        v = visibility[points[i]]
+        norm += v
+        if held[points[i]]:
+            held_prior += v
+    for i in range(n):
+        weight[i] = visibility[points[i]] / norm
+    M = len(total)
     for it in range(iterations + 1):
-        for m in range(len(total)):
+        for m in range(M):
             total[m] = 0.0
-        for k in range(n):
-            total[rows[k]] += weight[cols[k]] * vals[k]
+        for i in range(n):
+            w = weight[i]
+            row = dens[i]
+            for m in range(M):
+                total[m] += w * row[m]
         if it == iterations:
             break
-        for p in range(P):
-            mass[p] = 0.0
-        for k in range(n):
-            mass[cols[k]] += p_in * weight[cols[k]] * vals[k] / (p_in * total[rows[k]] + p_out)
+        for m in range(M):
+            inv[m] = p_in / (p_in * total[m] + p_out)
         s = 0.0
-        for p in range(P):
-            s += mass[p]
+        for i in range(n):
+            acc = 0.0
+            row = dens[i]
+            for m in range(M):
+                acc += row[m] * inv[m]
+            weight[i] *= acc                    # this step's mass of point i
+            s += weight[i]
         free = 0.0
-        for p in range(P):
-            if not held[p]:
-                weight[p] = (mass[p] + smoothing * visibility[p] / norm) / (s + smoothing)
-                free += weight[p]
+        for i in range(n):
+            if not held[points[i]]:
+                weight[i] = (weight[i] + smoothing * visibility[points[i]] / norm) / (s + smoothing)
+                free += weight[i]
         if held_prior > 0.0:
-            for p in range(P):
-                if held[p]:
-                    weight[p] = (1.0 - free) * visibility[p] / held_prior
+            for i in range(n):
+                if held[points[i]]:
+                    weight[i] = (1.0 - free) * visibility[points[i]] / held_prior
 
 
 @numba.njit(cache=True)
 def _work(M, P):
-    """Work arrays of one hypothesis: the sparse densities (rows, cols, vals) and the weights, masses and
-    inlier densities of ``_mixture``."""
-    return (np.empty(M * P, dtype=np.int64), np.empty(M * P, dtype=np.int64), np.empty(M * P), np.empty(P),
-            np.empty(P), np.empty(M))
+    """Work arrays of one hypothesis: the densities and their points (``_densities``), the exponential's
+    arguments and bits, and the weights, inlier densities and inverses of ``_mixture``."""
+    return (np.empty((P, M)), np.empty(P, dtype=np.int64), np.empty(M), np.empty(M, dtype=np.int64), np.empty(P),
+            np.empty(M), np.empty(M))
 
 
 @numba.njit(cache=True)
 def _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, p_in, p_out,
                 weight_iterations, smoothing, work):
-    """The densities and the adapted mixture of one hypothesis, in ``work``; returns the number of densities."""
-    rows, cols, vals, weight, mass, total = work
-    n = _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, rows, cols, vals)
-    _mixture(rows, cols, vals, n, visibility, held, p_in, p_out, weight_iterations, smoothing, weight, mass, total)
+    """The densities and the adapted mixture of one hypothesis, in ``work``; returns the number of visible
+    points."""
+    dens, points, arg, bits, weight, total, inv = work
+    n = _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, points, dens, arg, bits)
+    _mixture(dens, points, n, visibility, held, p_in, p_out, weight_iterations, smoothing, weight, total, inv)
     return n
 
 
@@ -136,21 +177,17 @@ def _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, 
 def _flow_loglik_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in, log_out,
                         weight_iterations, smoothing):
     H, P = visibility.shape
-    M = flows.shape[0]
+    M = flows.shape[1]
     out = np.empty((H, M))
     work = _work(M, P)
     total = work[5]
     p_in = np.exp(log_in)
     p_out = np.exp(log_out)
     for h in range(H):
-        if visibility[h].sum() <= 0.0:
-            for m in range(M):
-                out[h, m] = log_out
-            continue
-        _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], held[h], pos_var, vel_var, p_in,
-                    p_out, weight_iterations, smoothing, work)
+        n = _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], held[h], pos_var, vel_var,
+                        p_in, p_out, weight_iterations, smoothing, work)
         for m in range(M):
-            if total[m] > 0.0:
+            if n > 0 and total[m] > 0.0:
                 inlier = log_in + np.log(total[m])
                 hi = max(inlier, log_out)
                 out[h, m] = hi + np.log1p(np.exp(min(inlier, log_out) - hi))
@@ -163,19 +200,18 @@ def _flow_loglik_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, held, p
 def _responsibilities_kernel(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in,
                              log_out, weight_iterations, smoothing):
     P = visibility.shape[0]
-    M = flows.shape[0]
+    M = flows.shape[1]
     resp = np.zeros((M, P))
-    if visibility.sum() <= 0.0:
-        return resp
     work = _work(M, P)
-    rows, cols, vals, weight, _, total = work
+    dens, points, _, _, weight, total, _ = work
     p_in = np.exp(log_in)
     p_out = np.exp(log_out)
     n = _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, p_in, p_out,
                     weight_iterations, smoothing, work)
-    for k in range(n):
-        m, p = rows[k], cols[k]
-        resp[m, p] = p_in * weight[p] * vals[k] / (p_in * total[m] + p_out)
+    for i in range(n):
+        p = points[i]
+        for m in range(M):
+            resp[m, p] = p_in * weight[i] * dens[i, m] / (p_in * total[m] + p_out)
     return resp
 
 
@@ -196,11 +232,10 @@ class FlowModel:
 
 
 def _prepared(flows: np.ndarray, img: ImageDistributions, model: FlowModel, held: np.ndarray | None) -> tuple:
-    """The kernels' arguments: the flows sorted by ``u`` and their order, the projected distributions, which
-    points are held, and the scalars (observation noise's position and velocity variances, log inlier and
-    outlier terms, EM steps, pseudo-flows)."""
+    """The kernels' arguments: the flows as ``(4, M)`` columns, the projected distributions, which points are
+    held, and the scalars (observation noise's position and velocity variances, log inlier and outlier terms,
+    EM steps, pseudo-flows)."""
     flows = np.ascontiguousarray(flows, dtype=float).reshape(-1, 4)
-    order = np.argsort(flows[:, 0], kind="stable")
     max_flow = 0.25 * max(model.width, model.height) * model.fps if model.max_flow is None else model.max_flow
     log_out = np.log(model.outlier_prob) - np.log(model.width * model.height) - np.log(np.pi * max_flow**2)
     log_in = np.log1p(-model.outlier_prob)
@@ -210,7 +245,7 @@ def _prepared(flows: np.ndarray, img: ImageDistributions, model: FlowModel, held
             else np.ascontiguousarray(np.broadcast_to(held, img.visibility.shape), dtype=np.bool_))
     scalars = (float(model.noise_px**2), float(2.0 * (model.noise_px * model.fps) ** 2), log_in, log_out,
                int(model.weight_iterations), float(model.smoothing))
-    return np.ascontiguousarray(flows[order]), order, dists, held, scalars
+    return np.ascontiguousarray(flows.T), dists, held, scalars
 
 
 def flow_log_likelihoods(flows: np.ndarray, img: ImageDistributions, model: FlowModel,
@@ -221,10 +256,8 @@ def flow_log_likelihoods(flows: np.ndarray, img: ImageDistributions, model: Flow
     adapt the mixture weights of the model points to the flows (``model.smoothing``: pseudo-flows spread by
     visibility), except for ``held`` points ``(H, P)`` bool, whose weights keep their prior proportions.
     """
-    ordered, order, dists, held, scalars = _prepared(flows, img, model, held)
-    out = np.empty((img.visibility.shape[0], len(order)))
-    out[:, order] = _flow_loglik_kernel(ordered, *dists, held, *scalars)
-    return out
+    columns, dists, held, scalars = _prepared(flows, img, model, held)
+    return _flow_loglik_kernel(columns, *dists, held, *scalars)
 
 
 def tempered(per_flow: np.ndarray, n_eff: float) -> np.ndarray:
@@ -241,7 +274,5 @@ def responsibilities(flows: np.ndarray, img: ImageDistributions, model: FlowMode
     """For one hypothesis: ``(M, P)`` posterior probability that flow ``m`` comes from model point ``p``
     (rows sum to one minus the flow's outlier probability), under the same gate, visibility and adapted
     weights as ``flow_log_likelihoods`` (the same kernel code)."""
-    ordered, order, dists, held, scalars = _prepared(flows, img, model, held)
-    out = np.empty((len(order), img.visibility.shape[1]))
-    out[order] = _responsibilities_kernel(ordered, *(a[0] for a in dists), held[0], *scalars)
-    return out
+    columns, dists, held, scalars = _prepared(flows, img, model, held)
+    return _responsibilities_kernel(columns, *(a[0] for a in dists), held[0], *scalars)
