@@ -134,7 +134,7 @@ def test_self_occlusion_grid_equals_the_pair_loop(rng):
         vis = np.where(rng.random(P) < 0.6, rng.uniform(0.2, 1.0, P), 0.0)
         got = vis.copy()
         _self_occlusion(pix, depth, 60.0, 0.08, got, np.empty(P, np.int64), np.empty(4 * P + 1, np.int64),
-                        np.empty(P, np.int64))
+                        np.empty(P, np.int64), np.empty(P), np.empty((4, P)))
         np.testing.assert_allclose(got, pairs(pix, depth, 60.0, 0.08, vis), rtol=1e-12)
 
 

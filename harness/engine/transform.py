@@ -234,65 +234,71 @@ def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDi
     return ImageDistributions(*out)
 
 
-@numba.njit(cache=True)
+# The footprints' product may be taken in any order (it vectorises); nothing assumes away NaN or infinity.
+_PRODUCTS = {"reassoc", "contract", "nsz"}
+
+
+@numba.njit(cache=True, fastmath={"contract"})
 def _project_kernel(rot, trans, pose_index, state_index, pos, pos_cov, vel, vel_cov, normal, fx, fy, cx, cy, ego,
                     occ_radius, occ_depth, pix, pix_cov, flow, flow_cov, visibility):
     """The loop of ``to_image``: X = R x + t, Xdot = R xdot - v_c - w_c x X, u = pi(X), and the covariances
-    mapped by PR = d(u)/dX R (one fused pass; the numpy version built (H, P, 2, 3) temporaries), then the
-    depth-order visibility of each hypothesis' points."""
+    mapped by J = d(u)/dX R as ``(J Sigma) J^T`` (one fused pass over scalars), then the depth-order visibility
+    of each hypothesis' points."""
     H, P = pix.shape[0], pos.shape[1]
-    PR = np.empty((2, 3))
-    X = np.empty(3)
-    Xd = np.empty(3)
     depth = np.empty(P)
     cell = np.empty(P, dtype=np.int64)
     count = np.empty(4 * P + 1, dtype=np.int64)
     members = np.empty(P, dtype=np.int64)
+    inv_reach2 = np.empty(P)
+    near = np.empty((4, P))
+    e0, e1, e2, w0, w1, w2 = ego[0], ego[1], ego[2], ego[3], ego[4], ego[5]
     for h in range(H):
         s = state_index[h]
         g = pose_index[h]
-        R = rot[g]
+        r00, r01, r02 = rot[g, 0, 0], rot[g, 0, 1], rot[g, 0, 2]
+        r10, r11, r12 = rot[g, 1, 0], rot[g, 1, 1], rot[g, 1, 2]
+        r20, r21, r22 = rot[g, 2, 0], rot[g, 2, 1], rot[g, 2, 2]
+        t0, t1, t2 = trans[g, 0], trans[g, 1], trans[g, 2]
         for p in range(P):
-            for i in range(3):
-                X[i] = trans[g, i] + R[i, 0] * pos[s, p, 0] + R[i, 1] * pos[s, p, 1] + R[i, 2] * pos[s, p, 2]
-                Xd[i] = R[i, 0] * vel[s, p, 0] + R[i, 1] * vel[s, p, 1] + R[i, 2] * vel[s, p, 2] - ego[i]
-            Xd[0] -= ego[4] * X[2] - ego[5] * X[1]
-            Xd[1] -= ego[5] * X[0] - ego[3] * X[2]
-            Xd[2] -= ego[3] * X[1] - ego[4] * X[0]
-            n_dot_x = 0.0
-            for i in range(3):
-                n_dot_x += (R[i, 0] * normal[s, p, 0] + R[i, 1] * normal[s, p, 1] + R[i, 2] * normal[s, p, 2]) * X[i]
-            z = X[2]
+            x0, x1, x2 = pos[s, p, 0], pos[s, p, 1], pos[s, p, 2]
+            X0 = t0 + r00 * x0 + r01 * x1 + r02 * x2
+            X1 = t1 + r10 * x0 + r11 * x1 + r12 * x2
+            X2 = t2 + r20 * x0 + r21 * x1 + r22 * x2
+            v0, v1, v2 = vel[s, p, 0], vel[s, p, 1], vel[s, p, 2]
+            Xd0 = r00 * v0 + r01 * v1 + r02 * v2 - e0 - (w1 * X2 - w2 * X1)
+            Xd1 = r10 * v0 + r11 * v1 + r12 * v2 - e1 - (w2 * X0 - w0 * X2)
+            Xd2 = r20 * v0 + r21 * v1 + r22 * v2 - e2 - (w0 * X1 - w1 * X0)
+            n0, n1, n2 = normal[s, p, 0], normal[s, p, 1], normal[s, p, 2]
+            n_dot_x = ((r00 * n0 + r01 * n1 + r02 * n2) * X0 + (r10 * n0 + r11 * n1 + r12 * n2) * X1
+                       + (r20 * n0 + r21 * n1 + r22 * n2) * X2)
+            z = X2
             depth[p] = z
             visibility[h, p] = 1.0 if (n_dot_x < 0.0) and (z > MIN_DEPTH) else 0.0
             if z <= MIN_DEPTH:
                 z = 1.0
             iz = 1.0 / z
-            pix[h, p, 0] = fx * X[0] * iz + cx
-            pix[h, p, 1] = fy * X[1] * iz + cy
-            # d(u, v)/dX = [[fx/z, 0, -fx X/z^2], [0, fy/z, -fy Y/z^2]], then times R.
-            a0, a2 = fx * iz, -fx * X[0] * iz * iz
-            b1, b2 = fy * iz, -fy * X[1] * iz * iz
-            for j in range(3):
-                PR[0, j] = a0 * R[0, j] + a2 * R[2, j]
-                PR[1, j] = b1 * R[1, j] + b2 * R[2, j]
-            flow[h, p, 0] = a0 * Xd[0] + a2 * Xd[2]
-            flow[h, p, 1] = b1 * Xd[1] + b2 * Xd[2]
-            for r in range(2):
-                for c in range(r, 2):
-                    sp = 0.0
-                    sv = 0.0
-                    for i in range(3):
-                        for j in range(3):
-                            w = PR[r, i] * PR[c, j]
-                            sp += w * pos_cov[s, p, i, j]
-                            sv += w * vel_cov[s, p, i, j]
-                    pix_cov[h, p, r, c] = sp
-                    pix_cov[h, p, c, r] = sp
-                    flow_cov[h, p, r, c] = sv
-                    flow_cov[h, p, c, r] = sv
+            pix[h, p, 0] = fx * X0 * iz + cx
+            pix[h, p, 1] = fy * X1 * iz + cy
+            # d(u, v)/dX = [[fx/z, 0, -fx X/z^2], [0, fy/z, -fy Y/z^2]]; its rows times R are (A0, A1, A2), (B0, B1, B2).
+            a0, a2 = fx * iz, -fx * X0 * iz * iz
+            b1, b2 = fy * iz, -fy * X1 * iz * iz
+            A0, A1, A2 = a0 * r00 + a2 * r20, a0 * r01 + a2 * r21, a0 * r02 + a2 * r22
+            B0, B1, B2 = b1 * r10 + b2 * r20, b1 * r11 + b2 * r21, b1 * r12 + b2 * r22
+            flow[h, p, 0] = a0 * Xd0 + a2 * Xd2
+            flow[h, p, 1] = b1 * Xd1 + b2 * Xd2
+            for which in range(2):
+                cov = pos_cov if which == 0 else vel_cov
+                c00, c01, c02 = cov[s, p, 0, 0], cov[s, p, 0, 1], cov[s, p, 0, 2]
+                c11, c12, c22 = cov[s, p, 1, 1], cov[s, p, 1, 2], cov[s, p, 2, 2]
+                ta0, ta1, ta2 = A0 * c00 + A1 * c01 + A2 * c02, A0 * c01 + A1 * c11 + A2 * c12, A0 * c02 + A1 * c12 + A2 * c22
+                tb0, tb1, tb2 = B0 * c00 + B1 * c01 + B2 * c02, B0 * c01 + B1 * c11 + B2 * c12, B0 * c02 + B1 * c12 + B2 * c22
+                out = pix_cov if which == 0 else flow_cov
+                out[h, p, 0, 0] = ta0 * A0 + ta1 * A1 + ta2 * A2
+                out[h, p, 0, 1] = out[h, p, 1, 0] = ta0 * B0 + ta1 * B1 + ta2 * B2
+                out[h, p, 1, 1] = tb0 * B0 + tb1 * B1 + tb2 * B2
         if occ_radius > 0.0:
-            _self_occlusion(pix[h], depth, fy * occ_radius, occ_depth, visibility[h], cell, count, members)
+            _self_occlusion(pix[h], depth, fy * occ_radius, occ_depth, visibility[h], cell, count, members,
+                            inv_reach2, near)
 
 
 @numba.njit(cache=True)
@@ -323,20 +329,25 @@ def _bucket(pix, visibility, lo_u, lo_v, reach, nu, nv, cell, count, members):
 
 
 @numba.njit(cache=True)
-def _self_occlusion(pix, depth, focal_radius, min_gap, visibility, cell, count, members):
+def _self_occlusion(pix, depth, focal_radius, min_gap, visibility, cell, count, members, inv_reach2, near):
     """Multiply ``visibility`` ``(P,)`` by the footprints of the nearer visible points (see ``to_image``).
 
     Footprints end at two radii, so each point only looks at the grid cells (of the largest footprint's size)
     around it: the products of the double loop over all pairs, in a fraction of its time. ``cell``,
-    ``count``, ``members``: work arrays of ``P``, ``P + 1`` (at least) and ``P`` integers."""
+    ``count``, ``members``, ``inv_reach2``, ``near``: work arrays of ``P``, ``P + 1`` (at least), ``P`` integers,
+    ``P`` floats (each footprint's inverse squared reach, so that the pair loop does not divide) and ``(4, P)``
+    floats (the gathered neighbours)."""
     P = len(depth)
+    near_u, near_v, near_z, near_inv = near[0], near[1], near[2], near[3]
     reach = 0.0
     lo_u, lo_v, hi_u, hi_v = np.inf, np.inf, -np.inf, -np.inf
     n_front = 0
     for q in range(P):
         if visibility[q] > 0.0:
             n_front += 1
-            reach = max(reach, 2.0 * focal_radius / depth[q])
+            reach_q = 2.0 * focal_radius / depth[q]
+            inv_reach2[q] = 1.0 / (reach_q * reach_q)
+            reach = max(reach, reach_q)
             lo_u, hi_u = min(lo_u, pix[q, 0]), max(hi_u, pix[q, 0])
             lo_v, hi_v = min(lo_v, pix[q, 1]), max(hi_v, pix[q, 1])
     if n_front < 2:
@@ -346,25 +357,35 @@ def _self_occlusion(pix, depth, focal_radius, min_gap, visibility, cell, count, 
     if nu * nv + 1 > len(count):                # a spread-out hypothesis: fall back to one row of cells
         nu, nv = 1, 1
     _bucket(pix, visibility, lo_u, lo_v, reach, nu, nv, cell, count, members)
-    for p in range(P):
-        if cell[p] < 0:
+    # Cell by cell: the points of the 3 x 3 cells around it are gathered once into contiguous columns, and
+    # each of the cell's points runs over them in a loop without branches, which vectorises.
+    for c in range(nu * nv):
+        if count[c + 1] == count[c]:
             continue
-        v = visibility[p]
-        zp = depth[p]
-        cu = cell[p] // nv
-        cv = cell[p] - cu * nv
+        cu = c // nv
+        cv = c - cu * nv
+        n = 0
         for iu in range(max(cu - 1, 0), min(cu + 2, nu)):
             for iv in range(max(cv - 1, 0), min(cv + 2, nv)):
-                c = iu * nv + iv
-                for k in range(count[c], count[c + 1]):
+                d = iu * nv + iv
+                for k in range(count[d], count[d + 1]):
                     q = members[k]
-                    zq = depth[q]
-                    if zq >= zp - min_gap:
-                        continue
-                    reach_q = 2.0 * focal_radius / zq
-                    du = pix[p, 0] - pix[q, 0]
-                    dv = pix[p, 1] - pix[q, 1]
-                    d2 = (du * du + dv * dv) / (reach_q * reach_q)
-                    if d2 < 1.0:
-                        v *= 1.0 - (1.0 - d2) * (1.0 - d2)
-        visibility[p] = v
+                    near_u[n], near_v[n], near_z[n], near_inv[n] = pix[q, 0], pix[q, 1], depth[q], inv_reach2[q]
+                    n += 1
+        for k in range(count[c], count[c + 1]):
+            p = members[k]
+            visibility[p] *= _cover(pix[p, 0], pix[p, 1], depth[p] - min_gap, near_u, near_v, near_z, near_inv, n)
+
+
+@numba.njit(cache=True, fastmath=_PRODUCTS)
+def _cover(u, v, z, near_u, near_v, near_z, near_inv, n):
+    """The product of the footprints over a point at pixel ``(u, v)`` of the first ``n`` gathered points nearer
+    than ``z`` (the point's depth less the gap); selects, not branches, so that the loop vectorises."""
+    out = 1.0
+    for j in range(n):
+        du = u - near_u[j]
+        dv = v - near_v[j]
+        d2 = (du * du + dv * dv) * near_inv[j]
+        cover = 1.0 - (1.0 - d2) * (1.0 - d2)
+        out *= cover if (d2 < 1.0) & (near_z[j] < z) else 1.0
+    return out
