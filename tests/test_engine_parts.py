@@ -12,11 +12,13 @@ from engine_fixtures import CLASSES, synthetic_demos
 from harness import geometry
 from harness.body import forward_points, sample_surface
 from harness.engine import MotionDatabase, Recognizer, motion_features, recognize_features
-from harness.engine.likelihood import _exp, FlowModel, flow_log_likelihoods, responsibilities, tempered
+from harness.engine.likelihood import FlowModel, flow_log_likelihoods, responsibilities, tempered
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
-                                            motion_mean, propose, systematic_resample, upright_orientations)
+                                            motion_mean, pose_mixture_log_density, propose, systematic_resample,
+                                            upright_orientations)
 from harness.engine.recovery import Prior, refine_pose
 from harness.engine.transform import ImageDistributions, patch_std
+from harness.engine.vector_math import atan_ratio, exp_into
 from harness.errors import EngineError
 from harness.pinhole import Intrinsics, project
 
@@ -155,17 +157,20 @@ def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations,
                                np.log(eps / (W * Hh * np.pi * vmax**2)))
 
 
-def test_the_kernels_exponential_matches_numpys():
-    """The likelihood kernel's own (vectorising) exponential: relative error near machine precision over the
-    range of normal doubles, exactly zero below it and at minus infinity."""
+def test_the_kernels_elementary_functions_match_numpys():
+    """The kernels' own (vectorising) exp and atan: relative error near machine precision over the range of
+    normal doubles (exp; exactly zero below it and at minus infinity) and over [0, 1] (atan(t) / t)."""
     x = np.concatenate([np.linspace(-708.0, 709.0, 200001), [-0.0, 0.0, 1e-300, -1e-300]])
     out, bits = np.empty_like(x), np.empty(len(x), dtype=np.int64)
-    _exp(x, out, bits)
+    exp_into(x, out, bits)
     np.testing.assert_allclose(out, np.exp(x), rtol=1e-13)
     low = np.array([-708.5, -745.0, -1e5, -np.inf])
     out, bits = np.empty_like(low), np.empty(len(low), dtype=np.int64)
-    _exp(low, out, bits)
+    exp_into(low, out, bits)
     assert out.tolist() == [0.0, 0.0, 0.0, 0.0]
+    t = np.concatenate([np.linspace(0.0, 1.0, 20001)[1:], [1e-300, 1e-9, np.sqrt(2) - 1]])
+    np.testing.assert_allclose([atan_ratio(v) for v in t], np.arctan(t) / t, rtol=1e-14)
+    assert atan_ratio(0.0) == 1.0
 
 
 def test_tempering_counts_a_frame_as_at_most_n_eff_flows():
@@ -201,6 +206,37 @@ def test_particle_cloud_estimate_and_motion_model(rng):
     moved, _ = motion_mean(cloud.positions, cloud.quats, np.array([1.0, 0, 0]), np.zeros(3), 1.0)
     np.testing.assert_allclose(moved - cloud.positions, np.tile(geometry.rotate(q[0], np.array([1.0, 0, 0])),
                                                                  (500, 1)), atol=1e-12)
+
+
+def test_pose_mixture_density_matches_numpy_and_integrates_to_one(rng):
+    """The proposal's pose mixture density against the formula written with numpy (the relative rotation's
+    rotation vector in the noise frame), with an anisotropic noise frame, and its position-and-rotation
+    integral by Monte Carlo: one."""
+    K, N = 7, 300
+    mean_pos = rng.normal(0, 0.1, (K, 3)) + [0.0, 0.0, 4.0]
+    mean_quat = geometry.exp(rng.normal(0, 1.0, (K, 3)))
+    log_w = np.log(rng.dirichlet(np.ones(K)))
+    pos_std, rot_std = np.array([0.05, 0.08, 0.1]), np.array([0.1, 0.2, 0.05])
+    frame = geometry.to_matrix(geometry.exp(np.array([0.3, -0.2, 0.5])))
+    pos = mean_pos[rng.integers(0, K, N)] + rng.normal(0, 0.1, (N, 3))
+    quat = geometry.multiply(geometry.exp(rng.normal(0, 0.2, (N, 3))), mean_quat[rng.integers(0, K, N)])
+    dp = (pos[:, None] - mean_pos[None]) / pos_std
+    dr = (geometry.log(geometry.multiply(quat[:, None], geometry.conjugate(mean_quat)[None])) @ frame) / rot_std
+    terms = (log_w - 0.5 * (np.sum(dp**2, -1) + np.sum(dr**2, -1)) - np.log(pos_std).sum() - np.log(rot_std).sum()
+             - 3 * np.log(2 * np.pi))
+    expect = np.logaddexp.reduce(terms, axis=1)
+    np.testing.assert_allclose(pose_mixture_log_density(pos, quat, mean_pos, mean_quat, log_w, pos_std, rot_std,
+                                                        frame), expect, rtol=1e-12)
+    # Importance sampling from a wide Gaussian around one component: the density integrates to its weight.
+    one = np.zeros(1)
+    n = 200000
+    e = rng.normal(0, 3 * rot_std, (n, 3))
+    x = mean_pos[0] + rng.normal(0, 3 * pos_std, (n, 3))
+    q = geometry.multiply(geometry.exp(e @ frame.T), mean_quat[0])
+    log_q = (-0.5 * np.sum(((x - mean_pos[0]) / (3 * pos_std)) ** 2 + (e / (3 * rot_std)) ** 2, -1)
+             - np.log(3 * pos_std).sum() - np.log(3 * rot_std).sum() - 3 * np.log(2 * np.pi))
+    density = pose_mixture_log_density(x, q, mean_pos[:1], mean_quat[:1], one, pos_std, rot_std, frame)
+    assert np.mean(np.exp(density - log_q)) == pytest.approx(1.0, abs=0.02)
 
 
 def test_mixture_proposal_is_importance_weighted(rng):

@@ -28,48 +28,23 @@ import numba
 import numpy as np
 
 from harness.engine.transform import ImageDistributions
+from harness.engine.vector_math import FAST, exp_into
 
 _GATE = 60.0   # squared Mahalanobis distance in position beyond which a point's term is taken as zero
 
-# The kernels may reorder sums and fuse multiply-adds, so that their loops run on vector registers; they make no
-# assumption about NaN or infinity (results agree with the brute-force rule to about 1e-14, relative).
-_FAST = {"reassoc", "contract", "arcp", "nsz"}
-_LN2_HI = 6.93147180369123816490e-01       # ln 2 split in two for an exact range reduction (Cody and Waite)
-_LN2_LO = 1.90821492927058770002e-10
-_INV_LN2 = 1.44269504088896338700e+00
-_EXP_MIN = -708.0                          # below this, exp is not a normal double: taken as zero
 _TWO_PI_SQUARED = (2.0 * np.pi) ** 2
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _exp(x, out, bits):
-    """``out[i] = exp(x[i])`` (zero below ``_EXP_MIN``, arguments above 709 clipped), element-wise, in a form
-    that vectorises (libm's ``exp`` does not): ``exp(x) = 2^k exp(r)`` with ``k = round(x / ln 2)``,
-    ``|r| <= ln(2) / 2``, ``exp(r)`` by its Taylor polynomial of degree 13 (truncation below 1e-17) and ``2^k``
-    built in the exponent bits. ``bits``: int64 work array of the same length."""
-    n = len(x)
-    for i in range(n):
-        xi = min(max(x[i], _EXP_MIN), 709.0)
-        k = np.floor(xi * _INV_LN2 + 0.5)
-        r = (xi - k * _LN2_HI) - k * _LN2_LO
-        out[i] = 1.0 + r * (1.0 + r * (1 / 2 + r * (1 / 6 + r * (1 / 24 + r * (1 / 120 + r * (1 / 720 + r * (
-            1 / 5040 + r * (1 / 40320 + r * (1 / 362880 + r * (1 / 3628800 + r * (1 / 39916800 + r * (
-                1 / 479001600 + r * (1 / 6227020800)))))))))))))
-        bits[i] = (np.int64(k) + 1023) << 52
-    scale = bits.view(np.float64)
-    for i in range(n):
-        out[i] = out[i] * scale[i] if x[i] >= _EXP_MIN else 0.0
-
-
-@numba.njit(cache=True, fastmath=_FAST)
+@numba.njit(cache=True, fastmath=FAST, error_model="numpy")
 def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, points, dens, arg, bits):
     """The Gaussian densities of the flows (``(4, M)`` columns) under the visible points of one hypothesis
     (position and velocity, the observation noise ``pos_var``/``vel_var`` added to each covariance):
     ``dens[i, m]`` for visible point ``i`` (model point ``points[i]``), zero beyond the position gate. Returns
     the number of visible points; ``arg``, ``bits``: work arrays of ``M``.
 
-    Every flow is scored against every visible point in one dense pass that vectorises: with a few dozen flows
-    a band of them per point (the flows sorted by ``u``) saves less than its bookkeeping costs."""
+    Every flow is scored against every visible point in one dense pass that vectorises (``vector_math``):
+    with a few dozen flows, a band of them per point (the flows sorted by ``u``) saves less than its
+    bookkeeping costs."""
     P = pix.shape[0]
     M = flows.shape[1]
     us, vs, dus, dvs = flows[0], flows[1], flows[2], flows[3]
@@ -94,7 +69,7 @@ def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var
             e = -0.5 * (d2 + ja * x * x + 2.0 * jb * x * y + jc * y * y)
             arg[m] = e if d2 <= _GATE else -np.inf
         row = dens[n]
-        _exp(arg, row, bits)
+        exp_into(arg, row, bits)
         for m in range(M):
             row[m] *= norm
         points[n] = p
@@ -102,7 +77,7 @@ def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var
     return n
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@numba.njit(cache=True, fastmath=FAST, error_model="numpy")
 def _mixture(dens, points, n, visibility, held, p_in, p_out, iterations, smoothing, weight, total, inv):
     """The visible points' mixture weights ``weight[:n]`` and each flow's inlier density
     ``total[m] = sum_i w_i N_mi``.

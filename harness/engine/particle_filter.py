@@ -20,8 +20,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
+
 from harness.engine.logsum import logsumexp
+from harness.engine.vector_math import FAST, atan_ratio, exp_into
 
 from harness import geometry
 from harness.errors import EngineError
@@ -225,17 +228,64 @@ def motion_mean(positions: np.ndarray, quats: np.ndarray, base_linear: np.ndarra
     return pos, geometry.normalize(q)
 
 
-def _gaussian_pose_log_density(pos: np.ndarray, quat: np.ndarray, mean_pos: np.ndarray, mean_quat: np.ndarray,
-                               pos_std: np.ndarray, rot_std: np.ndarray, *, frame: np.ndarray) -> np.ndarray:
-    """``(N, K)``: log density of poses ``(N,)`` under Gaussians centred on ``(K,)`` poses, independent in
-    position (per-axis ``pos_std``, camera axes) and in the rotation vector ``log(R_mean^T R)`` expressed in
-    ``frame`` (per-axis ``rot_std``)."""
-    dp = (pos[:, None, :] - mean_pos[None, :, :]) / pos_std
-    # Noise is applied on the left in the camera frame (see propose): R = exp(e) R_mean, e in camera axes.
-    rel = geometry.multiply(quat[:, None, :], geometry.conjugate(mean_quat)[None, :, :])
-    dr = (geometry.log(rel) @ frame) / rot_std
-    return (-0.5 * (np.sum(dp * dp, axis=-1) + np.sum(dr * dr, axis=-1))
-            - np.sum(np.log(pos_std)) - np.sum(np.log(rot_std)) - 3.0 * np.log(2.0 * np.pi))
+@numba.njit(cache=True, fastmath=FAST, error_model="numpy")
+def pose_mixture_log_density(pos, quat, mean_pos, mean_quat, log_w, pos_std, rot_std, frame):
+    """``(N,)``: log density of poses ``pos (N, 3)``, ``quat (N, 4)`` under the mixture of Gaussians centred on
+    ``K`` poses ``mean_pos (K, 3)``, ``mean_quat (K, 4)`` with log weights ``log_w (K,)``: independent in
+    position (per-axis ``pos_std``, camera axes) and in the rotation vector ``log(R R_mean^T)`` expressed in
+    ``frame`` (per-axis ``rot_std``). The noise is applied on the left in the camera frame (see ``propose``):
+    ``R = exp(e) R_mean``, ``e`` in camera axes.
+
+    The rotation vector of a unit quaternion ``(w, v)``, ``w >= 0``, is ``theta v / |v|`` with
+    ``theta = 4 atan(|v| / (1 + w))`` (the quarter-angle tangent), i.e. ``4 / (1 + w) atan(t) / t`` times
+    ``v``: no division by ``|v|``, and a loop over the ``K`` centres that vectorises (``vector_math``)."""
+    N, K = len(pos), len(mean_pos)
+    out = np.empty(N)
+    log_norm = -3.0 * np.log(2.0 * np.pi)
+    for j in range(3):
+        log_norm -= np.log(pos_std[j]) + np.log(rot_std[j])
+    ip0, ip1, ip2 = 1.0 / pos_std[0], 1.0 / pos_std[1], 1.0 / pos_std[2]
+    # dr = (e @ frame) / rot_std: f_ji = frame_ij / rot_std_j, as scalars (loop invariants LLVM need not reload).
+    f00, f01, f02 = frame[0, 0] / rot_std[0], frame[1, 0] / rot_std[0], frame[2, 0] / rot_std[0]
+    f10, f11, f12 = frame[0, 1] / rot_std[1], frame[1, 1] / rot_std[1], frame[2, 1] / rot_std[1]
+    f20, f21, f22 = frame[0, 2] / rot_std[2], frame[1, 2] / rot_std[2], frame[2, 2] / rot_std[2]
+    # The centres as columns (contiguous loads), their rotations conjugated.
+    c = np.empty((8, K))
+    for k in range(K):
+        c[0, k], c[1, k], c[2, k] = mean_pos[k, 0] * ip0, mean_pos[k, 1] * ip1, mean_pos[k, 2] * ip2
+        c[3, k], c[4, k], c[5, k], c[6, k] = mean_quat[k, 0], -mean_quat[k, 1], -mean_quat[k, 2], -mean_quat[k, 3]
+        c[7, k] = log_w[k]
+    mx, my, mz, bws, bxs, bys, bzs, lws = c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]
+    term = np.empty(K)
+    dens = np.empty(K)
+    bits = np.empty(K, dtype=np.int64)
+    for n in range(N):
+        p0, p1, p2 = pos[n, 0] * ip0, pos[n, 1] * ip1, pos[n, 2] * ip2
+        aw, ax, ay, az = quat[n, 0], quat[n, 1], quat[n, 2], quat[n, 3]
+        for k in range(K):
+            d0, d1, d2 = p0 - mx[k], p1 - my[k], p2 - mz[k]
+            bw, bx, by, bz = bws[k], bxs[k], bys[k], bzs[k]
+            rw = aw * bw - ax * bx - ay * by - az * bz
+            sign = 1.0 if rw >= 0.0 else -1.0              # the shorter way round
+            rw *= sign
+            rx = sign * (aw * bx + ax * bw + ay * bz - az * by)
+            ry = sign * (aw * by - ax * bz + ay * bw + az * bx)
+            rz = sign * (aw * bz + ax * by - ay * bx + az * bw)
+            scale = 4.0 / (1.0 + rw) * atan_ratio(np.sqrt(rx * rx + ry * ry + rz * rz) / (1.0 + rw))
+            e0, e1, e2 = scale * rx, scale * ry, scale * rz
+            r0 = f00 * e0 + f01 * e1 + f02 * e2
+            r1 = f10 * e0 + f11 * e1 + f12 * e2
+            r2 = f20 * e0 + f21 * e1 + f22 * e2
+            term[k] = lws[k] - 0.5 * (d0 * d0 + d1 * d1 + d2 * d2 + r0 * r0 + r1 * r1 + r2 * r2)
+        top = term.max()
+        if top == -np.inf:
+            out[n] = -np.inf
+            continue
+        for k in range(K):
+            term[k] -= top
+        exp_into(term, dens, bits)
+        out[n] = top + np.log(dens.sum()) + log_norm
+    return out
 
 
 def propose(cloud: ParticleCloud, n: int, noise: ProcessNoise, rng: np.random.Generator, *,
@@ -260,17 +310,17 @@ def propose(cloud: ParticleCloud, n: int, noise: ProcessNoise, rng: np.random.Ge
     quat = geometry.multiply(geometry.exp((rng.normal(size=(n_model, 3)) * rot_std) @ frame.T), mean_quat[parents])
     if n_guide:
         g_pos, g_quat = guide
-        g_pos_std, g_rot_std = (np.broadcast_to(np.asarray(s, dtype=float), (3,)) for s in guide_std)
+        g_pos_std, g_rot_std = (np.array(np.broadcast_to(np.asarray(s, dtype=float), (3,))) for s in guide_std)
         pos = np.concatenate([pos, g_pos + rng.normal(size=(n_guide, 3)) * g_pos_std])
         quat = np.concatenate([quat, geometry.multiply(geometry.exp(rng.normal(size=(n_guide, 3)) * g_rot_std),
                                                        np.broadcast_to(g_quat, (n_guide, 4)))])
     quat = geometry.normalize(quat)
     log_w = np.full(n, -np.log(n))
     if n_guide:
-        prior = logsumexp(_gaussian_pose_log_density(pos, quat, mean_pos, mean_quat, pos_std, rot_std, frame=frame)
-                          + cloud.log_weights[None, :], axis=1)
-        g = _gaussian_pose_log_density(pos, quat, np.asarray(guide[0])[None], np.asarray(guide[1])[None],
-                                       g_pos_std, g_rot_std, frame=np.eye(3))[:, 0]
+        prior = pose_mixture_log_density(pos, quat, mean_pos, mean_quat, cloud.log_weights, pos_std, rot_std, frame)
+        g = pose_mixture_log_density(pos, quat, np.asarray(guide[0], dtype=float)[None],
+                                     np.asarray(guide[1], dtype=float)[None], np.zeros(1), g_pos_std, g_rot_std,
+                                     np.eye(3))
         a = n_guide / n
         q = np.logaddexp(np.log1p(-a) + prior, np.log(a) + g) if a < 1 else g
         log_w = prior - q

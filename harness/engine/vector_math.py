@@ -1,0 +1,64 @@
+"""Elementary functions in a form that vectorises inside numba loops.
+
+libm's ``exp`` and ``atan`` are opaque calls to LLVM, so a loop that calls them runs one element at a time;
+written as range reductions and polynomials, the same loops run on vector registers. Both agree with numpy to
+a few units in the last place (``tests/test_engine_parts.py``).
+
+``FAST`` is the kernels' fastmath set: sums may be reordered and multiply-adds fused; nothing assumes away NaN
+or infinity. Kernels that divide inside loops also take ``error_model="numpy"`` (no zero-division branch).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+FAST = {"reassoc", "contract", "arcp", "nsz"}
+EXP_MIN = -708.0                          # below this, exp is not a normal double: taken as zero
+_LN2_HI = 6.93147180369123816490e-01      # ln 2 split in two for an exact range reduction (Cody and Waite)
+_LN2_LO = 1.90821492927058770002e-10
+_INV_LN2 = 1.44269504088896338700e+00
+_TAN_PI_8 = 0.41421356237309503           # sqrt(2) - 1
+
+
+@numba.njit(cache=True, fastmath=FAST)
+def exp_into(x, out, bits):
+    """``out[i] = exp(x[i])`` (zero below ``EXP_MIN``, arguments above 709 clipped): ``exp(x) = 2^k exp(r)``
+    with ``k = round(x / ln 2)``, ``|r| <= ln(2) / 2``, ``exp(r)`` by its Taylor polynomial of degree 13
+    (truncation below 1e-17) and ``2^k`` built in the exponent bits. ``bits``: int64 work array of the same
+    length."""
+    n = len(x)
+    for i in range(n):
+        xi = min(max(x[i], EXP_MIN), 709.0)
+        k = np.floor(xi * _INV_LN2 + 0.5)
+        r = (xi - k * _LN2_HI) - k * _LN2_LO
+        out[i] = 1.0 + r * (1.0 + r * (1 / 2 + r * (1 / 6 + r * (1 / 24 + r * (1 / 120 + r * (1 / 720 + r * (
+            1 / 5040 + r * (1 / 40320 + r * (1 / 362880 + r * (1 / 3628800 + r * (1 / 39916800 + r * (
+                1 / 479001600 + r * (1 / 6227020800)))))))))))))
+        bits[i] = (np.int64(k) + 1023) << 52
+    scale = bits.view(np.float64)
+    for i in range(n):
+        out[i] = out[i] * scale[i] if x[i] >= EXP_MIN else 0.0
+
+
+# atan(y) / y = sum_k (-1)^k y^(2k) / (2k + 1): 22 terms leave less than 1e-17 for |y| <= tan(pi/8).
+_ATAN_SERIES = np.array([(-1) ** k / (2 * k + 1) for k in range(22)])
+
+
+@numba.njit(inline="always", fastmath=FAST)
+def _atan_series(y2):
+    """``atan(y) / y`` from ``y^2`` (Horner)."""
+    acc = 0.0
+    for k in range(len(_ATAN_SERIES) - 1, -1, -1):
+        acc = acc * y2 + _ATAN_SERIES[k]
+    return acc
+
+
+@numba.njit(inline="always", fastmath=FAST, error_model="numpy")
+def atan_ratio(t):
+    """``atan(t) / t`` for ``t`` in ``[0, 1]`` (1 at 0, no division by ``t`` near it). Above ``tan(pi/8)``,
+    ``atan(t) = pi/4 + atan((t - 1) / (t + 1))`` brings the series' argument back below it."""
+    y = (t - 1.0) / (t + 1.0)
+    small = _atan_series(t * t)
+    big = (np.pi / 4 + y * _atan_series(y * y)) / max(t, _TAN_PI_8)
+    return small if t <= _TAN_PI_8 else big
