@@ -14,6 +14,7 @@ from harness.engine.pose_source import GivenPose, ParticleTracks, mixture_pairs
 from harness.engine.records import FrameRecord, TrackRecord, causal_estimate, track_path
 from harness.engine.recognition import Recognizer
 from harness.engine.track import Track, prune_and_merge, turned
+from harness.engine.transform import PointDistributions
 from harness.observation import Observation
 
 
@@ -54,8 +55,8 @@ def test_batched_weighing_equals_a_loop_over_tracks_and_classes(body, trained, c
     batched = source.log_likelihoods(frame, tracks)
     terms = []
     for track, got in zip(tracks, batched):
-        log_w, mixes = track.class_mixtures(scorer.model.dists, scorer.config.weigh_classes,
-                                            scorer.config.weigh_class_mass)
+        log_w, rows = track.class_mixtures(scorer.config.weigh_classes, scorer.config.weigh_class_mass)
+        mixes = PointDistributions.concatenate([scorer.model.dists.mixture(r) for r in rows])
         terms.append(len(log_w))
         rot = geometry.to_matrix(track.cloud.quats)
         each = [scorer.frame_log_likelihood(frame, scorer.image(frame, rot, track.cloud.positions, mixes.take([c])),

@@ -6,7 +6,7 @@ import pytest
 from harness import geometry
 from harness.body import forward_points, point_jacobians, point_velocities, sample_surface
 from harness.engine.particle_filter import camera_pitch, upright_orientations
-from harness.engine.transform import JointGaussians, state_point_distributions, to_image
+from harness.engine.transform import JointGaussians, PointDistributions, state_point_distributions, to_image
 from harness.pinhole import Intrinsics, project
 
 
@@ -115,3 +115,33 @@ def test_moving_camera_changes_flow_by_ego_motion(monte_carlo):
     moving = to_image(intr, rot, trans, dist, camera_motion=np.array([1.0, 0, 0, 0, 0, 0]))
     X = dist.pos[0] @ rot[0].T + trans[0]
     np.testing.assert_allclose(moving.flow[0, :, 0] - still.flow[0, :, 0], -intr.fx / X[:, 2], rtol=1e-9)
+
+
+def test_batched_mixtures_equal_each_mixture_moment_matched_directly(rng):
+    """``PointDistributions.mixtures`` (weighted sums of second moments about the states' average, zeros
+    skipped) against the moment-matched mixture written out: mean, E[(x - m)(x - m)^T] as the within-state
+    covariance plus the spread of the means, the normal's mean direction and the base velocity."""
+    S, P = 12, 5
+    A = rng.normal(0, 0.1, (S, P, 3, 3))
+    B = rng.normal(0, 0.3, (S, P, 3, 3))
+    normal = rng.normal(0, 1, (S, P, 3))
+    dists = PointDistributions(rng.normal(0, 1, (S, P, 3)) + 2.0, A @ np.swapaxes(A, -1, -2), rng.normal(0, 2, (S, P, 3)),
+                               B @ np.swapaxes(B, -1, -2), normal / np.linalg.norm(normal, axis=-1, keepdims=True),
+                               rng.normal(0, 1, (S, 3)), rng.normal(0, 1, (S, 3)))
+    weights = rng.random((4, S)) * (rng.random((4, S)) < 0.5)
+    weights[:, 0] += 0.1                                    # every row has a state
+    got = dists.mixtures(weights)
+    for j, w in enumerate(weights / weights.sum(axis=1, keepdims=True)):
+        for mean, cov, g_mean, g_cov in ((dists.pos, dists.pos_cov, got.pos, got.pos_cov),
+                                         (dists.vel, dists.vel_cov, got.vel, got.vel_cov)):
+            m = np.einsum("s,spi->pi", w, mean)
+            d = mean - m
+            c = np.einsum("s,spij->pij", w, cov) + np.einsum("s,spi,spj->pij", w, d, d)
+            np.testing.assert_allclose(g_mean[j], m, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(g_cov[j], c, rtol=1e-10, atol=1e-12)
+        n = np.einsum("s,spi->pi", w, dists.normal)
+        np.testing.assert_allclose(got.normal[j], n / np.linalg.norm(n, axis=-1, keepdims=True), rtol=1e-12)
+        np.testing.assert_allclose(got.base_linear[j], w @ dists.base_linear, rtol=1e-12)
+        np.testing.assert_allclose(got.base_angular[j], w @ dists.base_angular, rtol=1e-12)
+    one = dists.mixture(weights[1])
+    np.testing.assert_allclose(one.pos_cov[0], got.pos_cov[1], rtol=1e-12)

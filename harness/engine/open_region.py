@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.ndimage import maximum_filter
 
@@ -31,13 +32,22 @@ class OpenMask:
     cell: float
 
     def held(self, pix: np.ndarray) -> np.ndarray:
-        """Whether pixels ``(..., 2)`` lie in the open region (outside the image: not)."""
-        rows, cols = _cells(pix, self.cell)
-        shape = self.open.shape
-        inside = (rows >= 0) & (rows < shape[0]) & (cols >= 0) & (cols < shape[1])
-        out = np.zeros(rows.shape, dtype=bool)
-        out[inside] = self.open[rows[inside], cols[inside]]
+        """Whether pixels ``(..., 2)`` lie in the open region (outside the image, or not finite: not)."""
+        pix = np.ascontiguousarray(pix, dtype=float)
+        out = np.empty(pix.shape[:-1], dtype=np.bool_)
+        _held(pix.reshape(-1, 2), self.open, 1.0 / self.cell, out.reshape(-1))
         return out
+
+
+@numba.njit(cache=True)
+def _held(pix, open_cells, inv_cell, out):
+    """``out[i]``: whether pixel ``pix[i]`` falls in an open cell (one pass; the weighing asks it of every model
+    point of every hypothesis)."""
+    rows, cols = open_cells.shape
+    for i in range(len(pix)):
+        u, v = pix[i, 0] * inv_cell, pix[i, 1] * inv_cell
+        inside = (u >= 0.0) & (u < cols) & (v >= 0.0) & (v < rows)     # False for NaN
+        out[i] = open_cells[int(v), int(u)] if inside else False
 
 
 class OpenRegion:

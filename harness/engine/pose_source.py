@@ -26,7 +26,6 @@ from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_
                                             initial_cloud, level_world, systematic_resample)
 from harness.engine.scoring import Scorer
 from harness.engine.track import Track, new_recognizer, prune_and_merge, turned, twin
-from harness.engine.transform import PointDistributions
 from harness.errors import EngineError
 
 
@@ -147,8 +146,7 @@ class ParticleTracks:
         wide that the first frame could not tell depth; one term per state would cost ``K`` times more."""
         model = self.scorer.model
         C, K = model.n_classes, model.n_states
-        mixes = PointDistributions.concatenate([model.dists.take(np.arange(c * K, (c + 1) * K)).mixture(prior[c])
-                                                for c in range(C)])
+        mixes = model.dists.mixtures(np.einsum("ck,cd->cdk", prior, np.eye(C)).reshape(C, C * K))
         n = len(cloud)
         img = self.scorer.image(frame, np.tile(geometry.to_matrix(cloud.quats), (C, 1, 1)),
                                 np.tile(cloud.positions, (C, 1)), mixes, np.repeat(np.arange(C), n))
@@ -212,10 +210,9 @@ class ParticleTracks:
         """Each track's particles' log-likelihoods ``(N_j,)`` under its own belief, a mixture over its likely
         primitives (``Track.class_mixtures``): all tracks and primitives in one kernel call."""
         cfg = self.scorer.config
-        mixtures = [t.class_mixtures(self.scorer.model.dists, cfg.weigh_classes, cfg.weigh_class_mass)
-                    for t in tracks]
+        mixtures = [t.class_mixtures(cfg.weigh_classes, cfg.weigh_class_mass) for t in tracks]
         pose_index, state_index = mixture_pairs([len(t.cloud) for t in tracks], [len(w) for w, _ in mixtures])
-        mixes = PointDistributions.concatenate([m for _, m in mixtures])
+        mixes = self.scorer.model.dists.mixtures(np.concatenate([rows for _, rows in mixtures]))
         pos = np.concatenate([t.cloud.positions for t in tracks])[pose_index]
         quat = np.concatenate([t.cloud.quats for t in tracks])[pose_index]
         img = self.scorer.image(frame, geometry.to_matrix(quat), pos, mixes, state_index)

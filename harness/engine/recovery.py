@@ -143,7 +143,7 @@ def recover(scorer: "Scorer", frame: "Frame", state_belief: np.ndarray, position
     if not refine or not frame.has_flows:
         return current
     prior = Prior(theta0, np.sqrt(var), position, position_std, rot, config.refine_rotation_std)
-    mix = model.dists.take(idx).mixture(gamma)
+    mix = model.dists.mixture(state_belief)
     for it in range(config.em_iterations):
         if it:
             mix = state_point_distributions(model.body, JointGaussians.at(current.angles, rates, rate_var,

@@ -61,17 +61,27 @@ class Scorer:
         """``(M, P)`` soft assignment of the frame's flows to the model points of one hypothesis."""
         return responsibilities(frame.flows, img, self.flow_model(frame), held=frame.held(img.pix))
 
-    def recognise(self, frame: Frame, recognizer: Recognizer, position: np.ndarray, quat: np.ndarray) -> float:
-        """One recognition step at a base pose (camera frame): every active state's tempered emission, folded
-        into ``recognizer``. Returns the recursion's normaliser (0 for a frame without flows)."""
+    def recognise(self, frame: Frame, recognizers: list[Recognizer], positions: np.ndarray,
+                  quats: np.ndarray) -> np.ndarray:
+        """One recognition step for each recognizer at its base pose (camera frame, ``(J, 3)`` and ``(J, 4)``):
+        every active state's tempered emission, folded into it. All recognizers' states are projected and scored
+        in one kernel call. Returns the recursions' normalisers ``(J,)`` (0 for a frame without flows)."""
         if not frame.has_flows:
-            return recognizer.update(None)
-        active = np.flatnonzero(recognizer.active().ravel())
-        img = self.image(frame, geometry.to_matrix(quat)[None], np.asarray(position)[None],
-                         self.model.dists.take(active))
-        log_b = np.zeros(recognizer.log_alpha.size)
-        log_b[active] = self.frame_log_likelihood(frame, img, self.config.n_eff_recognition)
-        return recognizer.update(log_b.reshape(recognizer.log_alpha.shape))
+            return np.array([rec.update(None) for rec in recognizers])
+        actives = [np.flatnonzero(rec.active().ravel()) for rec in recognizers]
+        owner = np.repeat(np.arange(len(recognizers)), [len(a) for a in actives])
+        rot = geometry.to_matrix(np.asarray(quats, dtype=float).reshape(-1, 4))
+        img = self.image(frame, rot[owner], np.asarray(positions, dtype=float).reshape(-1, 3)[owner],
+                         self.model.dists, np.concatenate(actives))
+        ll = self.frame_log_likelihood(frame, img, self.config.n_eff_recognition)
+        out = np.empty(len(recognizers))
+        at = 0
+        for j, (rec, active) in enumerate(zip(recognizers, actives)):
+            log_b = np.zeros(rec.log_alpha.size)
+            log_b[active] = ll[at:at + len(active)]
+            at += len(active)
+            out[j] = rec.update(log_b.reshape(rec.log_alpha.shape))
+        return out
 
     def floor_log_prior(self, frame: Frame, points: np.ndarray, quats: np.ndarray,
                         positions: np.ndarray) -> np.ndarray:
@@ -115,7 +125,7 @@ def path_recognition(model: EngineModel, config: TrackerConfig, obs: Observation
         if started or frame.has_flows:
             rec.predict()       # a no-op before the first update
             started = True
-            evidence[t] = scorer.recognise(frame, rec, positions[t], quats[t])
+            evidence[t] = scorer.recognise(frame, [rec], positions[t], quats[t])[0]
         posteriors[t] = rec.class_posterior
     return evidence, posteriors
 

@@ -14,8 +14,6 @@ pruning). Tracks are compared by evidence; the decision between them is made as 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from harness import geometry
@@ -28,9 +26,6 @@ from harness.engine.records import TrackRecord
 from harness.engine.recovery import Recovery
 from harness.engine.switching import SwitchingRecognizer
 from harness.engine.transform import PointDistributions
-
-if TYPE_CHECKING:
-    from harness.engine.scoring import Scorer
 
 # Depth reflection in the camera frame (through the plane z = const) and the body's left/right mirror in the
 # base frame (y -> -y). Their composition maps a pose to its twin: X = R x + t and S (X - t) + t = (S R S_b)
@@ -103,15 +98,11 @@ class Track:
         its own frame (``features.VELOCITY_SCHEME``), so the belief moves before it predicts the base."""
         self.recognizer.predict()
 
-    def recognise(self, scorer: "Scorer", frame: Frame) -> None:
-        """Fold the frame into the belief at this frame's pose; the recursion's normaliser is new evidence."""
-        self.log_evidence += scorer.recognise(frame, self.recognizer, *self.pose)
-
-    def class_mixtures(self, dists: PointDistributions, max_classes: int, mass: float
-                       ) -> tuple[np.ndarray, PointDistributions]:
+    def class_mixtures(self, max_classes: int, mass: float) -> tuple[np.ndarray, np.ndarray]:
         """The belief as a mixture over its most probable primitives (at most ``max_classes``, fewest covering
-        ``mass`` of the class posterior), each primitive moment-matched over its active states: log weights
-        ``(k,)`` (renormalised over the kept primitives) and ``k`` one-state point distributions.
+        ``mass`` of the class posterior), each primitive to be moment-matched over its active states
+        (``PointDistributions.mixtures``): log weights ``(k,)`` (renormalised over the kept primitives) and the
+        ``k`` terms' state weights ``(k, C * K)``.
 
         One moment-matched blob over every primitive is so wide early on that the particles cannot tell depth;
         a term per primitive keeps the shape of each."""
@@ -119,12 +110,12 @@ class Track:
         order = np.argsort(post)[::-1]
         k = min(max_classes, int(np.searchsorted(np.cumsum(post[order]), mass)) + 1)
         keep = order[:k]
-        active = self.recognizer.active()
-        joint = self.recognizer.posterior
-        K = joint.shape[1]
-        parts = [dists.take(c * K + np.flatnonzero(active[c])).mixture(joint[c][active[c]]) for c in keep]
+        joint = np.where(self.recognizer.active(), self.recognizer.posterior, 0.0)
+        C, K = joint.shape
+        rows = np.zeros((k, C, K))
+        rows[np.arange(k), keep] = joint[keep]
         w = post[keep] / post[keep].sum()
-        return np.log(w), PointDistributions.concatenate(parts)
+        return np.log(w), rows.reshape(k, C * K)
 
     def base_velocity(self, dists: PointDistributions) -> tuple[np.ndarray, np.ndarray]:
         """The base velocity the belief predicts (base frame): linear (m/s) and angular (rad/s)."""

@@ -6,8 +6,8 @@ Per frame (a ``Frame``: the flows and everything else the camera gave), in named
    around the pose recovery found in the previous frame, importance-weighted);
 2. ``weigh``: the pose source weighs them by the flows under each track's belief (all tracks' particles in one
    kernel call) and sets each track's pose estimate;
-3. ``recognise``: each track scores its active HMM states at its pose estimate; the forward recursion folds
-   them in, and its normaliser is added to the track's evidence;
+3. ``recognise``: each track scores its active HMM states at its pose estimate (all tracks in one kernel
+   call); the forward recursion folds them in, and its normaliser is added to the track's evidence;
 4. ``recover``: each track's angles from its recognised primitive's state belief, refined with its pose
    (EM and Gauss-Newton) for the tracks with the most evidence; a refined pose guides the next proposal;
 5. ``manage``: the pose source keeps the tracks worth keeping (particle tracks: drops those far behind the best
@@ -126,8 +126,7 @@ class Tracker:
         clock.lap("propose")
         self.source.weigh(frame, self.tracks)
         clock.lap("weigh")
-        for track in self.tracks:
-            track.recognise(self.scorer, frame)
+        self._recognise(frame)
         clock.lap("recognise")
         self._recover(frame)
         clock.lap("recover")
@@ -135,6 +134,15 @@ class Tracker:
         clock.lap("manage")
         self.records.append(FrameRecord(frame.index, tuple(t.record() for t in self.tracks),
                                         self.source.known_pose(frame), clock.elapsed_ms()))
+
+    def _recognise(self, frame: Frame) -> None:
+        """Fold the frame into every track's belief at the track's pose (all tracks in one kernel call); each
+        recursion's normaliser is new evidence for its track."""
+        evidence = self.scorer.recognise(frame, [t.recognizer for t in self.tracks],
+                                         np.array([t.pose[0] for t in self.tracks]),
+                                         np.array([t.pose[1] for t in self.tracks]))
+        for track, gained in zip(self.tracks, evidence):
+            track.log_evidence += gained
 
     def _recover(self, frame: Frame) -> None:
         """Recovery for the ``recover_tracks`` tracks with the most evidence; the others keep their belief's

@@ -21,6 +21,7 @@ Jacobian ``P = d(u, v)/dX`` maps both covariances: ``P R S R^T P^T``; ``udot = P
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numba
 import numpy as np
@@ -63,18 +64,58 @@ class PointDistributions:
 
     def mixture(self, weights: np.ndarray) -> "PointDistributions":
         """The moment-matched single Gaussian of the states' mixture with ``weights`` (S,): one 'state'."""
-        w = np.asarray(weights, dtype=float)
-        w = w / w.sum()
-        pos = np.tensordot(w, self.pos, 1)
-        vel = np.tensordot(w, self.vel, 1)
-        dp, dv = self.pos - pos, self.vel - vel
-        # sum_s w_s d_s d_s^T per point, as (P, 3, S) @ (P, S, 3)
-        pos_cov = np.tensordot(w, self.pos_cov, 1) + (dp * w[:, None, None]).transpose(1, 2, 0) @ dp.transpose(1, 0, 2)
-        vel_cov = np.tensordot(w, self.vel_cov, 1) + (dv * w[:, None, None]).transpose(1, 2, 0) @ dv.transpose(1, 0, 2)
-        normal = np.tensordot(w, self.normal, 1)
-        normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
-        return PointDistributions(pos[None], pos_cov[None], vel[None], vel_cov[None], normal[None],
-                                  (w @ self.base_linear)[None], (w @ self.base_angular)[None])
+        return self.mixtures(np.asarray(weights, dtype=float)[None])
+
+    def mixtures(self, weights: np.ndarray) -> "PointDistributions":
+        """``n`` moment-matched Gaussians of the states' mixtures with ``weights`` ``(n, S)`` (each row
+        normalised here; zeros are skipped), in one pass: the weighted sums of ``_moments``' rows. The moments
+        are taken about the states' average (so that ``E[x x^T] - m m^T`` loses no digits); the normals are the
+        weighted mean direction."""
+        w = np.ascontiguousarray(weights, dtype=float)
+        w = w / w.sum(axis=1, keepdims=True)
+        centre, table = self._moments
+        S, P = self.pos.shape[:2]
+        sums = _weighted_rows(table, w)
+        n = len(w)
+        at = np.cumsum([0, P * 3, P * 9, P * 3, P * 9, P * 3, 3, 3])
+        dp, pp, dv, vv, normal, lin, ang = (sums[:, at[i]:at[i + 1]] for i in range(7))
+        dp, dv = dp.reshape(n, P, 3), dv.reshape(n, P, 3)
+        pos_cov = pp.reshape(n, P, 3, 3) - dp[..., :, None] * dp[..., None, :]
+        vel_cov = vv.reshape(n, P, 3, 3) - dv[..., :, None] * dv[..., None, :]
+        normal = normal.reshape(n, P, 3)
+        normal = normal / np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
+        return PointDistributions(dp + centre[0], pos_cov, dv + centre[1], vel_cov, normal, lin.copy(), ang.copy())
+
+    @cached_property
+    def _moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """The states' average position and velocity per point ``(2, P, 3)``, and per state one row ``(S, X)``:
+        positions and velocities about that average, their second moments ``S + d d^T``, the normals and the
+        base velocities (computed once per distribution set; read-only)."""
+        centre = np.stack([self.pos.mean(axis=0), self.vel.mean(axis=0)])
+        dp, dv = self.pos - centre[0], self.vel - centre[1]
+        S = len(dp)
+        table = np.concatenate([dp.reshape(S, -1), (self.pos_cov + dp[..., :, None] * dp[..., None, :]).reshape(S, -1),
+                                dv.reshape(S, -1), (self.vel_cov + dv[..., :, None] * dv[..., None, :]).reshape(S, -1),
+                                self.normal.reshape(S, -1), self.base_linear, self.base_angular], axis=1)
+        return centre, np.ascontiguousarray(table)
+
+
+@numba.njit(cache=True, fastmath={"reassoc", "contract", "nsz"})
+def _weighted_rows(table, weights):
+    """``(n, X)``: ``weights (n, S) @ table (S, X)``, skipping zero weights (a track's belief covers the states
+    of one or a few primitives: a dense product would cost ten times more)."""
+    n, S = weights.shape
+    X = table.shape[1]
+    out = np.zeros((n, X))
+    for j in range(n):
+        row = out[j]
+        for s in range(S):
+            w = weights[j, s]
+            if w != 0.0:
+                source = table[s]
+                for x in range(X):
+                    row[x] += w * source[x]
+    return out
 
 
 def patch_std(body: BodyModel, n_points: int) -> float:
