@@ -14,8 +14,8 @@ from harness.body import forward_points, sample_surface
 from harness.engine import MotionDatabase, Recognizer, motion_features, recognize_features
 from harness.engine.likelihood import FlowModel, flow_log_likelihoods, responsibilities, tempered
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
-                                            motion_mean, pose_mixture_log_density, propose, systematic_resample,
-                                            upright_orientations)
+                                            motion_mean, pose_mixture_log_density, propose, propose_many,
+                                            systematic_resample, upright_orientations)
 from harness.engine.recovery import Prior, refine_pose
 from harness.engine.transform import ImageDistributions, patch_std
 from harness.engine.vector_math import atan_ratio, exp_into
@@ -237,6 +237,24 @@ def test_pose_mixture_density_matches_numpy_and_integrates_to_one(rng):
              - np.log(3 * pos_std).sum() - np.log(3 * rot_std).sum() - 3 * np.log(2 * np.pi))
     density = pose_mixture_log_density(x, q, mean_pos[:1], mean_quat[:1], one, pos_std, rot_std, frame)
     assert np.mean(np.exp(density - log_q)) == pytest.approx(1.0, abs=0.02)
+
+
+def test_many_clouds_proposed_at_once_move_each_by_its_own_velocity(rng):
+    """``propose_many``: each cloud's new particles are its ancestors (drawn by weight) moved by its own base
+    velocity, plus the process noise: their mean is the weighted mean of the moved ancestors and their spread
+    the noise's (sample moments of 20000 particles)."""
+    noise, dt, n = ProcessNoise(0.3, 0.2), 1 / 30, 20000
+    clouds = [ParticleCloud(rng.normal(0, 0.02, (30, 3)) + [x, 0.0, 4.0], geometry.exp(rng.normal(0, 0.05, (30, 3))),
+                            np.log(rng.dirichlet(np.ones(30)))) for x in (-1.0, 1.0)]
+    v, w = np.array([[3.0, 0.0, 0.0], [0.0, 0.0, -3.0]]), np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 0.0]])
+    moved = propose_many(clouds, n, noise, rng, base_linear=v, base_angular=w, dt=dt)
+    for j, (cloud, new) in enumerate(zip(clouds, moved)):
+        mean, _ = motion_mean(cloud.positions, cloud.quats, v[j], w[j], dt)
+        expect = cloud.weights @ mean
+        spread = np.sqrt(cloud.weights @ (mean - expect) ** 2 + noise.position**2 * dt)
+        np.testing.assert_allclose(new.positions.mean(axis=0), expect, atol=4 * spread.max() / np.sqrt(n))
+        np.testing.assert_allclose(new.positions.std(axis=0), spread, rtol=0.05)
+        np.testing.assert_allclose(new.weights, 1.0 / n)
 
 
 def test_mixture_proposal_is_importance_weighted(rng):

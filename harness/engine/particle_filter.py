@@ -299,6 +299,9 @@ def propose(cloud: ParticleCloud, n: int, noise: ProcessNoise, rng: np.random.Ge
     pose ``(position (3,), quaternion (4,))`` at the *new* frame; guide_std: its per-axis position (m) and
     rotation (rad, camera axes) standard deviations.
     """
+    if guide is None or guide_fraction <= 0:
+        return propose_many([cloud], n, noise, rng, base_linear=np.reshape(base_linear, (-1, 3)),
+                            base_angular=np.reshape(base_angular, (-1, 3)), dt=dt, camera_motion=camera_motion)[0]
     mean_pos, mean_quat = motion_mean(cloud.positions, cloud.quats, base_linear, base_angular, dt, camera_motion)
     pos_std = np.full(3, noise.position * np.sqrt(dt))
     rot_std = noise.rotation_std(dt)
@@ -326,3 +329,28 @@ def propose(cloud: ParticleCloud, n: int, noise: ProcessNoise, rng: np.random.Ge
         log_w = prior - q
         log_w -= logsumexp(log_w)
     return ParticleCloud(pos, quat, log_w)
+
+
+def propose_many(clouds: list[ParticleCloud], n: int, noise: ProcessNoise, rng: np.random.Generator, *,
+                 base_linear: np.ndarray, base_angular: np.ndarray, dt: float,
+                 camera_motion: np.ndarray | None = None) -> list[ParticleCloud]:
+    """The bootstrap proposal (``propose`` without a guide) for several clouds at once: ``n`` new equally
+    weighted particles each, cloud ``j`` moved by its own base velocity ``base_linear[j]``,
+    ``base_angular[j]`` (base frame; ``(J, 3)`` each, or ``(1, 3)`` for all). One motion-model pass and one
+    draw of noise for all clouds: the per-cloud work of the pose tracks is Python, not arithmetic."""
+    sizes = [len(c) for c in clouds]
+    owner = np.repeat(np.arange(len(clouds)), sizes)
+    v = np.asarray(base_linear, dtype=float).reshape(-1, 3)
+    w = np.asarray(base_angular, dtype=float).reshape(-1, 3)
+    mean_pos, mean_quat = motion_mean(np.concatenate([c.positions for c in clouds]),
+                                      np.concatenate([c.quats for c in clouds]), v[owner % len(v)],
+                                      w[owner % len(w)], dt, camera_motion)
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    parents = np.concatenate([start + systematic_resample(c.weights, rng, n) for start, c in zip(starts, clouds)])
+    total = len(parents)
+    pos = mean_pos[parents] + rng.normal(size=(total, 3)) * (noise.position * np.sqrt(dt))
+    frame = noise.frame()
+    quat = geometry.normalize(geometry.multiply(geometry.exp((rng.normal(size=(total, 3)) * noise.rotation_std(dt))
+                                                             @ frame.T), mean_quat[parents]))
+    log_w = np.full(n, -np.log(n))
+    return [ParticleCloud(pos[j * n:(j + 1) * n], quat[j * n:(j + 1) * n], log_w.copy()) for j in range(len(clouds))]

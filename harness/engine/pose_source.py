@@ -23,7 +23,7 @@ from harness import geometry
 from harness.engine.frame import Frame
 from harness.engine.logsum import logsumexp
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
-                                            initial_cloud, level_world, systematic_resample)
+                                            initial_cloud, level_world, propose_many, systematic_resample)
 from harness.engine.scoring import Scorer
 from harness.engine.track import Track, new_recognizer, prune_and_merge, turned, twin
 from harness.errors import EngineError
@@ -201,10 +201,26 @@ class ParticleTracks:
         return ProcessNoise(cfg.position_noise, cfg.rotation_noise, cfg.tilt_noise, -gravity)
 
     def predict(self, frame: Frame, tracks: list[Track]) -> None:
-        n_each = self.scorer.config.particles // len(tracks)
+        """Move every track's particles: the tracks recovery guides one by one (``Track.move``), the others in
+        one bootstrap pass (``propose_many``), each at its belief's base velocity."""
+        cfg = self.scorer.config
+        n_each = cfg.particles // len(tracks)
         noise = self.process_noise(frame.gravity)
+        dists = self.scorer.model.dists
+        free = []
         for track in tracks:
-            track.move(frame, self.scorer.model.dists, n_each, noise, self.rng, self.scorer.config)
+            if track.guided(cfg):
+                track.move(frame, dists, n_each, noise, self.rng, cfg)
+            else:
+                free.append(track)
+        if free:
+            velocity = [t.base_velocity(dists) for t in free]
+            clouds = propose_many([t.cloud for t in free], n_each, noise, self.rng,
+                                  base_linear=np.array([v for v, _ in velocity]),
+                                  base_angular=np.array([w for _, w in velocity]), dt=frame.dt,
+                                  camera_motion=frame.camera_motion)
+            for track, cloud in zip(free, clouds):
+                track.cloud = cloud
 
     def log_likelihoods(self, frame: Frame, tracks: list[Track]) -> list[np.ndarray]:
         """Each track's particles' log-likelihoods ``(N_j,)`` under its own belief, a mixture over its likely

@@ -132,6 +132,10 @@ class Track:
 
     # --- the pose -------------------------------------------------------------------------------
 
+    def guided(self, config: TrackerConfig) -> bool:
+        """Whether the next proposal is guided by this frame's recovery (it refined the track's pose)."""
+        return self.recovery is not None and self.recovery.refined and config.guide_fraction > 0
+
     def move(self, frame: Frame, dists: PointDistributions, n: int, noise: ProcessNoise,
              rng: np.random.Generator, config: TrackerConfig) -> None:
         """Propose ``n`` particles for this frame: the motion model at the belief's base velocity, mixed with
@@ -139,7 +143,7 @@ class Track:
         v, w = self.base_velocity(dists)
         guide = guide_std = None
         rec = self.recovery
-        if rec is not None and rec.refined and config.guide_fraction > 0:
+        if self.guided(config):
             g_pos, g_quat = motion_mean(rec.position[None], geometry.from_matrix(rec.rotation)[None], v, w, frame.dt,
                                         frame.camera_motion)
             guide = (g_pos[0], g_quat[0])
