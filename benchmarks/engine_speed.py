@@ -4,11 +4,12 @@
 
 10 primitives (6 demos each), each engine's own default number of particles (``--particles`` sets one for
 both), 100 markers, 150 model points, one process. The
-observations and the database are made once with this checkout and written to a temporary directory (the
-reference's database one-sided: the engines before the both-handed database know one chain only); the engine
+observations and the database are made once with this checkout and written to a temporary directory (one-sided
+for a reference from before the both-handed database, which knows one chain only); the engine
 of this checkout tracks them, then the engine of ``--reference`` (a git commit, checked out into a
-temporary worktree and run in a subprocess on the same files). Machines differ in speed, so the ratio is the
-number to compare; the target is 30 frames per second (33 ms per frame) on one core. Numba kernels are
+temporary worktree and run in a subprocess on the same files; default: the engine before issue 22's speed
+work). Machines differ in speed, so the ratio is the number to compare; the target is 60 frames per second
+(16.7 ms per frame) on one core and 2.5 times the reference's speed. Numba kernels are
 compiled (and cached) before timing, for both engines.
 """
 
@@ -26,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-# The last engine before the pose tracks (issue 12): one particle filter, jump proposals, facing-only visibility.
-DEFAULT_REFERENCE = "eccc808"
+# The engine before the speed work of issue 22 (tracks per primitive, both-handed database, 500 particles).
+DEFAULT_REFERENCE = "e3ee26d"
 
 _REFERENCE_SCRIPT = """
 import json, sys, time
@@ -66,6 +67,13 @@ def _reference_times(commit: str, db_path: Path, obs_paths: list[Path], particle
                            capture_output=True)
 
 
+def _knows_mirrored(commit: str) -> bool:
+    """Whether the engine at ``commit`` reads both-handed database files."""
+    done = subprocess.run(["git", "-C", str(ROOT), "grep", "-q", "mirrored", commit, "--", "harness/engine/database.py"],
+                          capture_output=True)
+    return done.returncode == 0
+
+
 def main() -> None:
     from harness.body import BodyModel
     from harness.engine import MotionDatabase, Tracker, TrackerConfig
@@ -94,7 +102,7 @@ def main() -> None:
              for i, c in enumerate(["walk"] + args.classes)]                  # the first one warms up
     with tempfile.TemporaryDirectory() as tmp:
         db_path = Path(tmp) / "db.npz"
-        one_sided.save(db_path)
+        (db if args.reference != "none" and _knows_mirrored(args.reference) else one_sided).save(db_path)
         obs_paths = []
         for i, obs in enumerate(clips):
             obs_paths.append(Path(tmp) / f"obs{i}.npz")

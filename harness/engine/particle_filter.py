@@ -130,7 +130,8 @@ class ParticleCloud:
         gathers the most weight. A cloud may hold mirrored modes, and the mean of two modes is neither."""
         w = self.weights
         centres = np.argsort(w)[-10:]
-        near = geometry.angle_between(self.quats[None, :, :], self.quats[centres][:, None, :]) <= mode_radius
+        # Unit quaternions a, b are within angle r of each other when |a . b| >= cos(r / 2).
+        near = np.abs(self.quats[centres] @ self.quats.T) >= np.cos(0.5 * mode_radius)
         near = near[np.argmax(near @ w)]
         w = np.where(near, w, 0.0)
         w = w / w.sum()

@@ -60,7 +60,11 @@ class Recognizer:
         """Move the posterior of the last frame through the transitions (the prior of the next frame)."""
         if not self._started:
             return
-        self.log_alpha = logsumexp(self.log_alpha[:, :, None] + self._log_trans, axis=1)
+        # A primitive outside the belief (-inf throughout) stays so: only the others move.
+        live = np.isfinite(self.log_alpha.max(axis=1))
+        moved = np.full_like(self.log_alpha, -np.inf)
+        moved[live] = logsumexp(self.log_alpha[live][:, :, None] + self._log_trans[live], axis=1)
+        self.log_alpha = moved
 
     def active(self) -> np.ndarray:
         """``(C, K)`` bool: the states worth evaluating in the coming update.
