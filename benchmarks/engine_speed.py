@@ -16,8 +16,12 @@ compiled (and cached) before timing, for both engines.
 from __future__ import annotations
 
 import argparse
+import cProfile
+import importlib
 import json
 import os
+import pkgutil
+import pstats
 import subprocess
 import sys
 import tempfile
@@ -67,6 +71,33 @@ def _reference_times(commit: str, db_path: Path, obs_paths: list[Path], particle
                            capture_output=True)
 
 
+def print_profile(profiler: cProfile.Profile, frames: int) -> None:
+    """Time per frame in the engine's numba kernels (each named), in MuJoCo's kinematics, and in everything else
+    (Python and the numpy calls it makes); the profiler's own overhead inflates the last share."""
+    import numba
+    import harness.engine as engine
+    kernels = {}
+    for module in pkgutil.iter_modules(engine.__path__):
+        mod = importlib.import_module(f"harness.engine.{module.name}")
+        for name, obj in vars(mod).items():
+            if isinstance(obj, numba.core.registry.CPUDispatcher):
+                code = obj.py_func.__code__
+                kernels[(code.co_filename, code.co_firstlineno, code.co_name)] = name
+    stats = pstats.Stats(profiler).stats
+    whole = sum(s[2] for s in stats.values())
+    split = {}
+    for key, s in stats.items():
+        if key in kernels:
+            split[kernels[key]] = split.get(kernels[key], 0.0) + s[2]
+        elif key[0] == "~" and "mujoco" in key[2]:
+            split["MuJoCo kinematics"] = split.get("MuJoCo kinematics", 0.0) + s[2]
+    rest = whole - sum(split.values())
+    print(f"\nprofile (ms per frame, under cProfile: {1e3 * whole / frames:.1f} in all)")
+    for name, t in sorted(split.items(), key=lambda kv: -kv[1]):
+        print(f"  {name:28s} {1e3 * t / frames:6.1f}  {100 * t / whole:4.0f}%")
+    print(f"  {'Python and numpy':28s} {1e3 * rest / frames:6.1f}  {100 * rest / whole:4.0f}%")
+
+
 def _knows_mirrored(commit: str) -> bool:
     """Whether the engine at ``commit`` reads both-handed database files."""
     done = subprocess.run(["git", "-C", str(ROOT), "grep", "-q", "mirrored", commit, "--", "harness/engine/database.py"],
@@ -90,6 +121,8 @@ def main() -> None:
     ap.add_argument("--reference", default=DEFAULT_REFERENCE, help="git commit of the reference engine "
                                                                    "('none' to skip it)")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="engine settings of this engine")
+    ap.add_argument("--profile", action="store_true", help="also split this engine's time into numba kernels, "
+                                                            "MuJoCo and the Python (with numpy) around them")
     args = ap.parse_args()
     body = BodyModel.load()
     rng = np.random.default_rng(0)
@@ -114,6 +147,9 @@ def main() -> None:
         print(f"database transform (once): {1e3 * (time.perf_counter() - t0):.0f} ms for "
               f"{db.means_.shape[0] * db.means_.shape[1]} states x {args.points} points")
         tracker.run(clips[0])
+        profiler = cProfile.Profile() if args.profile else None
+        if profiler is not None:
+            profiler.enable()
         total, frames, parts = 0.0, 0, {}
         for c, obs in zip(args.classes, clips[1:]):
             t1 = time.perf_counter()
@@ -124,6 +160,9 @@ def main() -> None:
                 parts[k] = parts.get(k, 0.0) + v * len(obs)
             print(f"{c:13s} {len(obs)} frames, {obs.counts[1:].mean():.0f} flows/frame, tracks "
                   f"{est.n_tracks.max()} -> {est.n_tracks[-1]}: {1e3 * (time.perf_counter() - t1) / len(obs):.1f} ms/frame")
+        if profiler is not None:
+            profiler.disable()
+            print_profile(profiler, frames)
         ms = 1e3 * total / frames
         print(f"\nthis engine: {ms:.1f} ms/frame ({1e3 / ms:.0f} fps); per stage: "
               + ", ".join(f"{k} {v / frames:.1f} ms" for k, v in parts.items()))
