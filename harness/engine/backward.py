@@ -1,0 +1,80 @@
+"""The offline backward pass: the clip tracked again from its end, where the causal pass's poses have settled.
+
+The causal pass starts its tracks from one frame's guess; its poses settle within about 40% of a clip
+(``docs/engine.md``, heading over time), and a class whose tracks were in the wrong pose early may have been
+pruned before its pose settled. Offline, the whole clip is known. The backward pass plays the clip backwards
+(``reverse``: flows and database in reversed time) and starts one set of tracks per primitive at the poses
+the causal pass ended with:
+
+- a primitive still tracked at the end starts from its own final clouds (each of its live tracks'), the
+  others from the causal leader's final cloud (the body's settled pose, whatever the primitive);
+- each start also spawns its twin (``track.twin``), since a settled pose may still be the twin's.
+
+Each backward track believes only its primitive (late commitment, as in the causal pass), is moved, weighed,
+recognised, recovered, pruned and merged by the causal loop's own stages, with the reversed model. At the end
+of the backward pass (the clip's first frame) every track has the evidence of the whole clip along its own
+path. The offline estimate is that pass's: the class posterior of its final frame (the evidence-weighted
+mixture over its tracks) at every frame, and the whole path of its track with the most evidence, smoothed,
+in forward time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from harness.engine.estimate import Estimate
+from harness.engine.particle_filter import ParticleCloud
+from harness.engine.pose_source import ParticleTracks
+from harness.engine.track import Track, new_recognizer, twin
+
+
+class SettledStarts(ParticleTracks):
+    """The backward pass's pose source: the causal pass's final clouds, one set per primitive (module
+    docstring), instead of a first frame's search; every other stage as the causal ``ParticleTracks``."""
+
+    def __init__(self, scorer, rng, starts: list[tuple[int, str, ParticleCloud]]):
+        super().__init__(scorer, rng)
+        self.starts = starts
+
+    def start(self, frame) -> list[Track]:
+        cfg = self.scorer.config
+        tracks = []
+        for primitive, origin, cloud in self.starts:
+            variants = [(origin, cloud)]
+            if cfg.twin_track:
+                variants.append((origin + "~twin", ParticleCloud(cloud.positions.copy(), twin(cloud.quats, frame.gravity),
+                                                                 cloud.log_weights.copy())))
+            for name, c in variants:
+                belief = new_recognizer(self.scorer.model.db, cfg).restrict([primitive])
+                prefix = f"{self.scorer.model.db.classes_[primitive]}/"
+                tracks.append(Track(self._spawned, prefix + name, belief, c, primitive=primitive, memory=self.memory))
+                self._spawned += 1
+        # The clouds are the causal pass's at the clip's last frame; the first backward frame with flows is the
+        # one before it, so they move one frame first.
+        self.predict(frame, tracks)
+        return tracks
+
+
+def settled_starts(final_tracks: list[Track], n_classes: int) -> list[tuple[int, str, ParticleCloud]]:
+    """One start per primitive and live final track of it (``(primitive, origin, cloud)``), the leader's cloud
+    for a primitive without a live track (module docstring)."""
+    leader = max(final_tracks, key=lambda t: t.log_evidence)
+    starts = []
+    for c in range(n_classes):
+        own = [t for t in final_tracks if t.primitive == c]
+        if own:
+            starts += [(c, "end:" + t.origin.split("/")[-1], t.cloud) for t in own]
+        else:
+            starts.append((c, "end:leader", leader.cloud))
+    return starts
+
+
+def in_forward_time(rev: Estimate) -> Estimate:
+    """An estimate of the reversed clip with every per-frame array put back in forward time."""
+    flip = {name: getattr(rev, name)[::-1].copy() for name in ("qpos", "class_posterior", "joint_posterior",
+                                                                "filter_pos", "filter_quat", "n_tracks", "leader",
+                                                                "ms_per_frame", "raw_log_posterior")
+            if getattr(rev, name) is not None}
+    return replace(rev, offline=None, **flip)

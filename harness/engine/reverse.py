@@ -1,0 +1,112 @@
+"""Time reversal: the database and the frames of a clip played backwards, for the offline backward pass.
+
+The offline estimate may re-track a clip from its end (``backward.py``): the pose there has settled, while the
+causal pass started from one frame's guess. Tracking backwards needs the database and the flows as they
+would be if the clip ran backwards.
+
+**Flows.** A flow is a backward difference, ``d_t = (p_t - p_{t-1}) fps`` at ``p_t``. Backwards in time the
+point moves from ``p_t`` to ``p_{t-1}``, so the reversed clip's flow at time ``t - 1`` is at
+``p_{t-1} = p_t - d_t / fps`` with velocity ``-d_t``: exact, with the same unlabeled points. The reversed
+clip's frame for time ``t`` is made from the forward frame ``t + 1``; the last frame has none (no flows).
+
+**Database.** Every velocity changes sign: the angle rates, the base's linear and angular velocity, and so
+every model point's velocity ``J theta_dot + v + omega x x``. Its covariance ``H S_theta H^T + J S_rate J^T +
+S_v + [x] S_omega [x]^T`` is unchanged (``H = Jdot + [omega] J`` changes sign with the rates and ``omega``),
+so the point distributions reverse exactly by negating the velocity means. Positions are unchanged. A state
+reached from ``j`` at rate ``A[j, k]`` is left towards ``j`` backwards: with the expected stay in a state
+``d_k = 1 / (1 - A[k, k])`` (each state of a left-to-right chain is visited once),
+
+    A_rev[k, k] = A[k, k],    A_rev[k, j] ∝ d_j A[j, k]  (j != k),  scaled to 1 - A[k, k]
+
+(a state without a predecessor, the first of a non-cyclic chain, absorbs). The reversed chain starts where
+the forward one ends: a non-cyclic chain's absorbing last state, anywhere in a cyclic one.
+
+The velocities are backward differences in reversed time too, but they pair the angle at ``t - 1`` with the
+rate over ``(t - 1, t)``, where the database pairs it with the rate over ``(t - 2, t - 1)``: under
+acceleration the reversed database is half a frame off (``a dt / 2``, the error the forward convention
+avoids; ``features.VELOCITY_SCHEME``).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import replace
+
+import numpy as np
+
+from harness.engine.database import MotionDatabase
+from harness.engine.features import ANGLE_RATES, BASE_ANGULAR, BASE_LINEAR
+from harness.engine.model import EngineModel
+
+# Features whose sign time reversal flips: every velocity.
+_VELOCITIES = np.zeros(2 * ANGLE_RATES.start + 6, dtype=bool)
+for _sl in (ANGLE_RATES, BASE_LINEAR, BASE_ANGULAR):
+    _VELOCITIES[_sl] = True
+_REVERSAL_SIGN = np.where(_VELOCITIES, -1.0, 1.0)
+
+
+def reversed_transitions(transmat: np.ndarray) -> np.ndarray:
+    """``(..., S, S)``: each chain's transitions in reversed time (module docstring)."""
+    a = np.asarray(transmat, dtype=float)
+    stay = np.diagonal(a, axis1=-2, axis2=-1)
+    dwell = 1.0 / np.maximum(1.0 - stay, 1e-12)
+    flow = np.swapaxes(a * dwell[..., :, None], -1, -2)            # flow[k, j] = d_j A[j, k]
+    eye = np.eye(a.shape[-1], dtype=bool)
+    flow = np.where(eye, 0.0, flow)
+    into = flow.sum(axis=-1, keepdims=True)
+    leave = 1.0 - stay[..., :, None]
+    out = np.where(into > 0, flow / np.where(into > 0, into, 1.0) * leave, 0.0)
+    # A state nothing leads into (the first of a non-cyclic chain) keeps its whole mass backwards.
+    stay_rev = np.where(into[..., 0] > 0, stay, 1.0)
+    return np.where(eye, stay_rev[..., :, None], out)
+
+
+def reversed_start(transmat: np.ndarray) -> np.ndarray:
+    """``(..., S)``: where the reversed chains start: the forward chains' absorbing states, or, for a chain
+    without one (cyclic), uniformly over it. Both chains of a both-handed database share the mass equally,
+    as their forward starts do."""
+    a = np.asarray(transmat, dtype=float)
+    stay = np.diagonal(a, axis1=-2, axis2=-1)
+    absorbing = stay >= 1.0 - 1e-9
+    # Chains are the connected blocks of the transition matrix; a block without an absorbing state is cyclic.
+    reach = (a > 0) | np.eye(a.shape[-1], dtype=bool)
+    for _ in range(int(np.ceil(np.log2(a.shape[-1]))) + 1):
+        reach = reach | ((reach.astype(float) @ reach.astype(float)) > 0)
+    ends = np.where(absorbing, 1.0, 0.0)
+    # Every state: its chain's absorbing states if it has any, else the whole chain.
+    chain_ends = np.einsum("...ij,...j->...i", reach.astype(float), ends)
+    start = np.where(chain_ends > 0, ends, 1.0)
+    # One unit of mass per chain, then normalised over the chains.
+    per_chain = np.einsum("...ij,...j->...i", reach.astype(float), start)
+    start = start / np.where(per_chain > 0, per_chain, 1.0)
+    return start / start.sum(axis=-1, keepdims=True)
+
+
+def reversed_database(db: MotionDatabase) -> MotionDatabase:
+    """The database of clips played backwards (module docstring)."""
+    db.validate()
+    out = copy.copy(db)
+    out.means_ = db.means_ * _REVERSAL_SIGN
+    out.covars_ = db.covars_.copy()
+    out.transmat_ = reversed_transitions(db.transmat_)
+    out.startprob_ = reversed_start(db.transmat_)
+    return out
+
+
+def reversed_model(model: EngineModel) -> EngineModel:
+    """The engine's model of clips played backwards: the reversed database, its point distributions with
+    every velocity mean negated (exact, module docstring)."""
+    d = model.dists
+    dists = replace(d, vel=-d.vel, base_linear=-d.base_linear, base_angular=-d.base_angular)
+    return replace(model, db=reversed_database(model.db), dists=dists, db_means=model.db_means * _REVERSAL_SIGN)
+
+
+def reversed_flows(flows: list[np.ndarray], fps: float) -> list[np.ndarray]:
+    """The flows of a clip played backwards, in reversed order: element ``s`` is the reversed clip's frame
+    ``s``, i.e. time ``T - 1 - s``, made from the forward frame ``T - s`` (none for ``s = 0``)."""
+    T = len(flows)
+    out = [np.zeros((0, 4))]
+    for t in range(T - 1, 0, -1):
+        f = np.asarray(flows[t], dtype=float).reshape(-1, 4)
+        out.append(np.concatenate([f[:, :2] - f[:, 2:] / fps, -f[:, 2:]], axis=1))
+    return out
