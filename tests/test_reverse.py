@@ -62,7 +62,7 @@ def test_the_reversed_model_is_the_transform_of_the_reversed_database(body, trai
 def test_the_backward_pass_is_repeatable_and_covers_every_frame(body, trained):
     m = synthetic_demos(body, "march", 1, np.random.default_rng(3), seconds=0.6)[0]
     obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))
-    cfg = TrackerConfig(particles=60, model_points=40, track_turns=(), init_factor=2)
+    cfg = TrackerConfig(particles=60, model_points=40, track_turns=(), init_factor=2, backward_pass=True)
     one = Tracker(trained, body, cfg, rng=np.random.default_rng(5)).run(obs).offline
     two = Tracker(trained, body, cfg, rng=np.random.default_rng(5)).run(obs).offline
     np.testing.assert_array_equal(one.qpos, two.qpos)
