@@ -19,17 +19,17 @@ def trained(body):
     return MotionDatabase(n_states=6, cyclic=("march", "wave"), n_iter=5).fit(train)
 
 
-def test_reversed_flows_are_the_backward_differences_of_the_reversed_paths():
+def test_reversed_flows_pair_each_position_with_the_velocity_of_the_interval_it_ends():
     rng = np.random.default_rng(0)
     fps, T, N = 30.0, 7, 5
     paths = np.cumsum(rng.normal(0, 3, (T, N, 2)), axis=0)           # pixel paths of N points
     forward = [np.zeros((0, 4))] + [np.concatenate([paths[t], (paths[t] - paths[t - 1]) * fps], axis=1)
                                     for t in range(1, T)]
-    back = reversed_flows(forward, fps)
-    rev = paths[::-1]
-    assert len(back) == T and len(back[0]) == 0
-    for s in range(1, T):
-        expected = np.concatenate([rev[s], (rev[s] - rev[s - 1]) * fps], axis=1)
+    back = reversed_flows(forward)
+    assert len(back) == T and len(back[-1]) == 0
+    for s in range(T - 1):
+        t = T - 1 - s            # the reversed clip's frame s is time t: the point at p_t moving to p_{t-1}
+        expected = np.concatenate([paths[t], (paths[t - 1] - paths[t]) * fps], axis=1)
         np.testing.assert_allclose(back[s], expected, atol=1e-9)
 
 

@@ -51,9 +51,6 @@ class SettledStarts(ParticleTracks):
                 prefix = f"{self.scorer.model.db.classes_[primitive]}/"
                 tracks.append(Track(self._spawned, prefix + name, belief, c, primitive=primitive, memory=self.memory))
                 self._spawned += 1
-        # The clouds are the causal pass's at the clip's last frame; the first backward frame with flows is the
-        # one before it, so they move one frame first.
-        self.predict(frame, tracks)
         return tracks
 
 

@@ -5,9 +5,12 @@ causal pass started from one frame's guess. Tracking backwards needs the databas
 would be if the clip ran backwards.
 
 **Flows.** A flow is a backward difference, ``d_t = (p_t - p_{t-1}) fps`` at ``p_t``. Backwards in time the
-point moves from ``p_t`` to ``p_{t-1}``, so the reversed clip's flow at time ``t - 1`` is at
-``p_{t-1} = p_t - d_t / fps`` with velocity ``-d_t``: exact, with the same unlabeled points. The reversed
-clip's frame for time ``t`` is made from the forward frame ``t + 1``; the last frame has none (no flows).
+point moves from ``p_t`` to ``p_{t-1}``: the same flow with its velocity negated, ``-d_t`` at ``p_t``, is that
+motion (a forward difference in reversed time). Kept at ``p_t``, it pairs the position at ``t`` with the
+velocity over ``(t - 1, t)``, as the database's states do (``features.VELOCITY_SCHEME``); the reversed clip's
+own backward difference, ``-d_{t+1}`` at ``p_t``, would pair it with the velocity over ``(t, t + 1)``, a whole
+frame of acceleration off. So the reversed clip's frame for time ``t`` is the forward frame ``t`` with its
+velocities negated.
 
 **Database.** Every velocity changes sign: the angle rates, the base's linear and angular velocity, and so
 every model point's velocity ``J theta_dot + v + omega x x``. Its covariance ``H S_theta H^T + J S_rate J^T +
@@ -21,10 +24,9 @@ reached from ``j`` at rate ``A[j, k]`` is left towards ``j`` backwards: with the
 (a state without a predecessor, the first of a non-cyclic chain, absorbs). The reversed chain starts where
 the forward one ends: a non-cyclic chain's absorbing last state, anywhere in a cyclic one.
 
-The velocities are backward differences in reversed time too, but they pair the angle at ``t - 1`` with the
-rate over ``(t - 1, t)``, where the database pairs it with the rate over ``(t - 2, t - 1)``: under
-acceleration the reversed database is half a frame off (``a dt / 2``, the error the forward convention
-avoids; ``features.VELOCITY_SCHEME``).
+The base moves backwards from ``t`` to ``t - 1`` by ``-v_t``, but the reversed loop predicts it with the
+belief of frame ``t - 1``, ``-v_{t-1}``: the motion model is a frame off under acceleration (the process noise
+covers it), the emissions are exact.
 """
 
 from __future__ import annotations
@@ -101,12 +103,11 @@ def reversed_model(model: EngineModel) -> EngineModel:
     return replace(model, db=reversed_database(model.db), dists=dists, db_means=model.db_means * _REVERSAL_SIGN)
 
 
-def reversed_flows(flows: list[np.ndarray], fps: float) -> list[np.ndarray]:
+def reversed_flows(flows: list[np.ndarray]) -> list[np.ndarray]:
     """The flows of a clip played backwards, in reversed order: element ``s`` is the reversed clip's frame
-    ``s``, i.e. time ``T - 1 - s``, made from the forward frame ``T - s`` (none for ``s = 0``)."""
-    T = len(flows)
-    out = [np.zeros((0, 4))]
-    for t in range(T - 1, 0, -1):
-        f = np.asarray(flows[t], dtype=float).reshape(-1, 4)
-        out.append(np.concatenate([f[:, :2] - f[:, 2:] / fps, -f[:, 2:]], axis=1))
+    ``s``, time ``T - 1 - s``: the forward frame's flows with their velocities negated (module docstring)."""
+    out = []
+    for f in flows[::-1]:
+        f = np.asarray(f, dtype=float).reshape(-1, 4)
+        out.append(np.concatenate([f[:, :2], -f[:, 2:]], axis=1))
     return out

@@ -183,7 +183,7 @@ class Tracker:
         back = Tracker(model.db, model.body, replace(self.config, backward_pass=False), model=model)
         source = SettledStarts(back.scorer, self.source.rng, settled_starts(self.tracks, model.n_classes))
         back.reset(intr, fps, source=source)
-        flows = reversed_flows([f for f, _, _, _ in self._inputs], fps)
+        flows = reversed_flows([f for f, _, _, _ in self._inputs])
         for s, f in enumerate(flows):
             _, _, gravity, height = self._inputs[len(flows) - 1 - s]
             back.step(f, None, gravity, height)
