@@ -26,9 +26,9 @@ from functools import cached_property
 import numba
 import numpy as np
 
-from harness.body.kinematics import forward_points, forward_points_and_jacobians
 from harness.body.model import BodyModel
 from harness.body.surface import SurfacePoints, geom_area
+from harness.body.tree import body_frames_into, frame_work, points_and_jacobians_into
 from harness.engine.database import MotionDatabase
 from harness.engine.features import ANGLE_RATES, ANGLES, BASE_ANGULAR, BASE_LINEAR
 from harness.pinhole import Intrinsics
@@ -168,44 +168,95 @@ class JointGaussians:
 def state_point_distributions(body: BodyModel, gaussians: JointGaussians, points: SurfacePoints,
                               spread: float = 0.0) -> PointDistributions:
     """Carry ``S`` joint-space Gaussians to the ``P`` model points in the base frame (see the module
-    docstring); ``spread``: the surface patch's std (m)."""
+    docstring); ``spread``: the surface patch's std (m). One compiled pass per state (``_carry``)."""
     g = gaussians
-    angles, angle_var, rates, rate_var = g.angles, g.angle_var, g.rates, g.rate_var
-    base_linear, base_linear_var, base_angular, base_angular_var = (g.base_linear, g.base_linear_var,
-                                                                    g.base_angular, g.base_angular_var)
-    angles = np.atleast_2d(angles)
+    angles = np.atleast_2d(np.asarray(g.angles, dtype=float))
     S = len(angles)
-    qpos = np.zeros((S, 57))
-    qpos[:, 3] = 1.0
-    qpos[:, 7:] = angles
-    pos, jac = forward_points_and_jacobians(body, qpos, points.body, points.local, frame="base")
-    rates = np.atleast_2d(rates)
-    if np.any(np.asarray(angle_var) > 0):
-        step = _JDOT_STEP / np.maximum(np.abs(rates).max(axis=1, keepdims=True), 1e-12)
-        qpos_hi, qpos_lo = qpos.copy(), qpos.copy()
-        qpos_hi[:, 7:] += step * rates
-        qpos_lo[:, 7:] -= step * rates
-        jdot = (forward_points_and_jacobians(body, qpos_hi, points.body, points.local, frame="base")[1]
-                - forward_points_and_jacobians(body, qpos_lo, points.body, points.local, frame="base")[1]
-                ) / (2 * step[:, :, None, None])
-    else:
-        jdot = np.zeros_like(jac)    # H enters only through H S_theta H^T, which is zero without angle variance
-    tip = forward_points(body, qpos, points.body, points.local + points.normal, frame="base")
-    normal = tip - pos
+    per_state = [np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=float), (S, n))) for a, n in (
+        (g.angles, angles.shape[1]), (g.angle_var, angles.shape[1]), (g.rates, angles.shape[1]),
+        (g.rate_var, angles.shape[1]), (g.base_linear, 3), (g.base_linear_var, 3), (g.base_angular, 3),
+        (g.base_angular_var, 3))]
+    P = len(points.body)
+    out = PointDistributions(np.empty((S, P, 3)), np.empty((S, P, 3, 3)), np.empty((S, P, 3)), np.empty((S, P, 3, 3)),
+                             np.empty((S, P, 3)), per_state[4].copy(), per_state[6].copy())
+    _carry(body.tree.arrays, *per_state, np.ascontiguousarray(points.body, dtype=np.int64),
+           np.ascontiguousarray(points.local, dtype=float), np.ascontiguousarray(points.normal, dtype=float),
+           float(spread), out.pos, out.pos_cov, out.vel, out.vel_cov, out.normal)
+    return out
 
-    w = np.atleast_2d(base_angular)
-    v = np.atleast_2d(base_linear)
-    skew_w = _skew(w)[:, None]                                   # (S, 1, 3, 3)
-    vel = np.einsum("spij,sj->spi", jac, rates) + v[:, None] + np.cross(w[:, None], pos)
-    h = jdot + skew_w @ jac                                      # (S, P, 3, 50)
-    theta_var = np.atleast_2d(angle_var)[:, None, None, :]
-    pos_cov = (jac * theta_var) @ np.swapaxes(jac, -1, -2) + spread**2 * np.eye(3)
-    skew_x = _skew(pos)
-    vel_cov = ((h * theta_var) @ np.swapaxes(h, -1, -2)
-               + (jac * np.atleast_2d(rate_var)[:, None, None, :]) @ np.swapaxes(jac, -1, -2)
-               + np.atleast_2d(base_linear_var)[:, None, None, :] * np.eye(3)
-               + (skew_x * np.atleast_2d(base_angular_var)[:, None, None, :]) @ np.swapaxes(skew_x, -1, -2))
-    return PointDistributions(pos, pos_cov, vel, vel_cov, normal, v, w)
+
+@numba.njit(cache=True)
+def _carry(tree, angles, angle_var, rates, rate_var, base_linear, base_linear_var, base_angular, base_angular_var,
+           point_body, point_local, point_normal, spread, pos, pos_cov, vel, vel_cov, normal):
+    """The loop of ``state_point_distributions``: per state the body frames, the points with their Jacobians and
+    normals, then the moments of the module docstring, summed over the hinges on each point's chain (the other
+    columns of J are zero). ``Jdot`` only when the state has angle variance: ``H`` enters only through
+    ``H S_theta H^T``."""
+    S, J = angles.shape
+    P = len(point_body)
+    chain, chain_len = tree[7], tree[8]
+    frames = frame_work(tree)
+    eye, zero = np.eye(3), np.zeros(3)
+    jac, jdot, lo = np.empty((P, 3, J)), np.empty((P, 3, J)), np.empty((P, 3, J))
+    moved, scratch = np.empty(J), np.empty((P, 3))
+    H, skew_x = np.empty((3, J)), np.empty((3, 3))
+    for s in range(S):
+        with_jdot = False
+        for k in range(J):
+            with_jdot |= angle_var[s, k] > 0.0
+        if with_jdot:
+            # Jdot = (J(theta + h theta_dot) - J(theta - h theta_dot)) / 2h, h = _JDOT_STEP / max |theta_dot|.
+            h = _JDOT_STEP / max(np.abs(rates[s]).max(), 1e-12)
+            for sign in (1.0, -1.0):
+                for k in range(J):
+                    moved[k] = angles[s, k] + sign * h * rates[s, k]
+                body_frames_into(tree, moved, eye, zero, frames)
+                points_and_jacobians_into(tree, frames, point_body, point_local, scratch, jdot if sign > 0 else lo)
+            for i in range(P):
+                for r in range(3):
+                    for k in range(J):
+                        jdot[i, r, k] = (jdot[i, r, k] - lo[i, r, k]) / (2 * h)
+        body_frames_into(tree, angles[s], eye, zero, frames)
+        points_and_jacobians_into(tree, frames, point_body, point_local, pos[s], jac)
+        R = frames[0]
+        w, v = base_angular[s], base_linear[s]
+        for i in range(P):
+            b = point_body[i]
+            x = pos[s, i]
+            for r in range(3):
+                normal[s, i, r] = R[b, r, 0] * point_normal[i, 0] + R[b, r, 1] * point_normal[i, 1] \
+                    + R[b, r, 2] * point_normal[i, 2]
+            # xdot = J theta_dot + v + omega x x; H = Jdot + [omega]_x J on the chain's columns.
+            cross = (w[1] * x[2] - w[2] * x[1], w[2] * x[0] - w[0] * x[2], w[0] * x[1] - w[1] * x[0])
+            for r in range(3):
+                acc = v[r] + cross[r]
+                for c in range(chain_len[b]):
+                    k = chain[b, c]
+                    acc += jac[i, r, k] * rates[s, k]
+                vel[s, i, r] = acc
+            for c in range(chain_len[b]):
+                k = chain[b, c]
+                j0, j1, j2 = jac[i, 0, k], jac[i, 1, k], jac[i, 2, k]
+                d0, d1, d2 = (jdot[i, 0, k], jdot[i, 1, k], jdot[i, 2, k]) if with_jdot else (0.0, 0.0, 0.0)
+                H[0, k] = d0 + w[1] * j2 - w[2] * j1
+                H[1, k] = d1 + w[2] * j0 - w[0] * j2
+                H[2, k] = d2 + w[0] * j1 - w[1] * j0
+            skew_x[0, 0], skew_x[0, 1], skew_x[0, 2] = 0.0, -x[2], x[1]
+            skew_x[1, 0], skew_x[1, 1], skew_x[1, 2] = x[2], 0.0, -x[0]
+            skew_x[2, 0], skew_x[2, 1], skew_x[2, 2] = -x[1], x[0], 0.0
+            for r in range(3):
+                for q in range(r, 3):
+                    # pos: J S_theta J^T + s^2 I; vel: H S_theta H^T + J S_rate J^T + S_v + [x]_x S_omega [x]_x^T.
+                    pc = spread * spread if r == q else 0.0
+                    vc = base_linear_var[s, r] if r == q else 0.0
+                    for c in range(chain_len[b]):
+                        k = chain[b, c]
+                        pc += jac[i, r, k] * angle_var[s, k] * jac[i, q, k]
+                        vc += H[r, k] * angle_var[s, k] * H[q, k] + jac[i, r, k] * rate_var[s, k] * jac[i, q, k]
+                    for k in range(3):
+                        vc += skew_x[r, k] * base_angular_var[s, k] * skew_x[q, k]
+                    pos_cov[s, i, r, q] = pos_cov[s, i, q, r] = pc
+                    vel_cov[s, i, r, q] = vel_cov[s, i, q, r] = vc
 
 
 def database_point_distributions(db: MotionDatabase, body: BodyModel, points: SurfacePoints,
