@@ -126,13 +126,6 @@ def patch_std(body: BodyModel, n_points: int) -> float:
     return float(radius / 2.0)
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``[v]_x`` for ``(..., 3)`` vectors: ``(..., 3, 3)``."""
-    z = np.zeros(v.shape[:-1])
-    x, y, w = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
-
-
 @dataclass(frozen=True)
 class JointGaussians:
     """``S`` joint-space Gaussians with diagonal covariances: means and variances of the angles ``(S, 50)``
@@ -172,10 +165,8 @@ def state_point_distributions(body: BodyModel, gaussians: JointGaussians, points
     g = gaussians
     angles = np.atleast_2d(np.asarray(g.angles, dtype=float))
     S = len(angles)
-    per_state = [np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=float), (S, n))) for a, n in (
-        (g.angles, angles.shape[1]), (g.angle_var, angles.shape[1]), (g.rates, angles.shape[1]),
-        (g.rate_var, angles.shape[1]), (g.base_linear, 3), (g.base_linear_var, 3), (g.base_angular, 3),
-        (g.base_angular_var, 3))]
+    per_state = [_per_state(a, S) for a in (g.angles, g.angle_var, g.rates, g.rate_var, g.base_linear,
+                                            g.base_linear_var, g.base_angular, g.base_angular_var)]
     P = len(points.body)
     out = PointDistributions(np.empty((S, P, 3)), np.empty((S, P, 3, 3)), np.empty((S, P, 3)), np.empty((S, P, 3, 3)),
                              np.empty((S, P, 3)), per_state[4].copy(), per_state[6].copy())
@@ -183,6 +174,13 @@ def state_point_distributions(body: BodyModel, gaussians: JointGaussians, points
            np.ascontiguousarray(points.local, dtype=float), np.ascontiguousarray(points.normal, dtype=float),
            float(spread), out.pos, out.pos_cov, out.vel, out.vel_cov, out.normal)
     return out
+
+
+def _per_state(a: np.ndarray, S: int) -> np.ndarray:
+    """``(S, n)`` contiguous rows of a per-state parameter given as ``(S, n)``, ``(1, n)`` or ``(n,)``."""
+    a = np.asarray(a, dtype=float)
+    a = a.reshape(1, -1) if a.ndim == 1 else a
+    return np.ascontiguousarray(a if len(a) == S else np.repeat(a, S, axis=0))
 
 
 @numba.njit(cache=True)
