@@ -299,10 +299,24 @@ def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDi
     The output has one row per pair. ``camera_motion``: ``(6,)`` camera linear and angular velocity in its
     own frame, or None.
     """
+    poses = projection_arguments(intr, rot, trans, dist, camera_motion, state_index, occlusion)
+    H, P = len(poses[2]), dist.pos.shape[1]
+    out = (np.empty((H, P, 2)), np.empty((H, P, 2, 2)), np.empty((H, P, 2)), np.empty((H, P, 2, 2)),
+           np.empty((H, P)))
+    _project_kernel(*poses, *out)
+    return ImageDistributions(*out)
+
+
+def projection_arguments(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDistributions,
+                         camera_motion: np.ndarray | None, state_index: np.ndarray | None,
+                         occlusion: tuple[float, float] | None) -> tuple:
+    """What the projection kernels take for ``to_image``'s arguments (checked, paired): the poses, each
+    hypothesis' pose and state, the body-frame distributions, the camera ``(fx, fy, cx, cy)``, its motion
+    ``(6,)`` and the self-occlusion's footprint radius and depth gap (zeros: off)."""
     rot = np.ascontiguousarray(rot, dtype=float).reshape(-1, 3, 3)
     trans = np.ascontiguousarray(trans, dtype=float).reshape(-1, 3)
     ego = np.zeros(6) if camera_motion is None else np.asarray(camera_motion, dtype=float)
-    S, P = dist.pos.shape[:2]
+    S = dist.pos.shape[0]
     if state_index is None:
         H = max(len(rot), S)
         if len(rot) not in (1, H) or S not in (1, H):
@@ -315,80 +329,97 @@ def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDi
         if len(rot) != H or (H and (state_index.min() < 0 or state_index.max() >= S)):
             raise ValueError(f"state_index must give one of {S} states for each of the {len(rot)} poses")
         pose_index = np.arange(H)
-    out = (np.empty((H, P, 2)), np.empty((H, P, 2, 2)), np.empty((H, P, 2)), np.empty((H, P, 2, 2)),
-           np.empty((H, P)))
     radius, depth = (0.0, 0.0) if occlusion is None else (float(occlusion[0]), float(occlusion[1]))
-    _project_kernel(rot, trans, pose_index, state_index, *(np.ascontiguousarray(a) for a in (
-        dist.pos, dist.pos_cov, dist.vel, dist.vel_cov, dist.normal)), intr.fx, intr.fy, intr.cx, intr.cy, ego,
-        radius, depth, *out)
-    return ImageDistributions(*out)
+    return (rot, trans, pose_index, state_index, *(np.ascontiguousarray(a) for a in (
+        dist.pos, dist.pos_cov, dist.vel, dist.vel_cov, dist.normal)),
+        np.array([intr.fx, intr.fy, intr.cx, intr.cy]), ego, radius, depth)
 
 
 # The footprints' product may be taken in any order (it vectorises); nothing assumes away NaN or infinity.
 _PRODUCTS = {"reassoc", "contract", "nsz"}
+# Visible points up to which self-occlusion runs over all pairs: measured per hypothesis against the grid at 150,
+# 300 and 600 model points (about 75, 150 and 300 visible), 2.1x and 1.5x faster, and even.
+_ALL_PAIRS = 256
+
+
+@numba.njit(cache=True)
+def _project_kernel(rot, trans, pose_index, state_index, pos, pos_cov, vel, vel_cov, normal, camera, ego, occ_radius,
+                    occ_depth, pix, pix_cov, flow, flow_cov, visibility):
+    """The loop of ``to_image``: each hypothesis projected (``project_pose``), then the depth-order visibility
+    of its points."""
+    H, P = pix.shape[0], pos.shape[1]
+    depth = np.empty(P)
+    occlusion = occlusion_work(P)
+    for h in range(H):
+        s, g = state_index[h], pose_index[h]
+        project_pose(rot[g], trans[g], pos[s], pos_cov[s], vel[s], vel_cov[s], normal[s], camera, ego, True, pix[h],
+                     pix_cov[h], flow[h], flow_cov[h], visibility[h], depth)
+        if occ_radius > 0.0:
+            self_occlusion(pix[h], depth, camera[1] * occ_radius, occ_depth, visibility[h], occlusion)
 
 
 @numba.njit(cache=True, fastmath={"contract"})
-def _project_kernel(rot, trans, pose_index, state_index, pos, pos_cov, vel, vel_cov, normal, fx, fy, cx, cy, ego,
-                    occ_radius, occ_depth, pix, pix_cov, flow, flow_cov, visibility):
-    """The loop of ``to_image``: X = R x + t, Xdot = R xdot - v_c - w_c x X, u = pi(X), and the covariances
-    mapped by J = d(u)/dX R as ``(J Sigma) J^T`` (one fused pass over scalars), then the depth-order visibility
-    of each hypothesis' points."""
-    H, P = pix.shape[0], pos.shape[1]
-    depth = np.empty(P)
-    cell = np.empty(P, dtype=np.int64)
-    count = np.empty(4 * P + 1, dtype=np.int64)
-    members = np.empty(P, dtype=np.int64)
-    inv_reach2 = np.empty(P)
-    near = np.empty((4, P))
+def project_pose(rot, trans, pos, pos_cov, vel, vel_cov, normal, camera, ego, every_point, pix, pix_cov, flow,
+                 flow_cov, visibility, depth):
+    """One hypothesis: X = R x + t, Xdot = R xdot - v_c - w_c x X, u = pi(X), the covariances mapped by
+    J = d(u)/dX R as ``(J Sigma) J^T`` (one fused pass over scalars), the facing test into ``visibility`` and the
+    depths. ``every_point`` false: the covariances only of the points that face the camera (the likelihood
+    reads no other)."""
+    P = pos.shape[0]
+    fx, fy, cx, cy = camera[0], camera[1], camera[2], camera[3]
     e0, e1, e2, w0, w1, w2 = ego[0], ego[1], ego[2], ego[3], ego[4], ego[5]
-    for h in range(H):
-        s = state_index[h]
-        g = pose_index[h]
-        r00, r01, r02 = rot[g, 0, 0], rot[g, 0, 1], rot[g, 0, 2]
-        r10, r11, r12 = rot[g, 1, 0], rot[g, 1, 1], rot[g, 1, 2]
-        r20, r21, r22 = rot[g, 2, 0], rot[g, 2, 1], rot[g, 2, 2]
-        t0, t1, t2 = trans[g, 0], trans[g, 1], trans[g, 2]
-        for p in range(P):
-            x0, x1, x2 = pos[s, p, 0], pos[s, p, 1], pos[s, p, 2]
-            X0 = t0 + r00 * x0 + r01 * x1 + r02 * x2
-            X1 = t1 + r10 * x0 + r11 * x1 + r12 * x2
-            X2 = t2 + r20 * x0 + r21 * x1 + r22 * x2
-            v0, v1, v2 = vel[s, p, 0], vel[s, p, 1], vel[s, p, 2]
-            Xd0 = r00 * v0 + r01 * v1 + r02 * v2 - e0 - (w1 * X2 - w2 * X1)
-            Xd1 = r10 * v0 + r11 * v1 + r12 * v2 - e1 - (w2 * X0 - w0 * X2)
-            Xd2 = r20 * v0 + r21 * v1 + r22 * v2 - e2 - (w0 * X1 - w1 * X0)
-            n0, n1, n2 = normal[s, p, 0], normal[s, p, 1], normal[s, p, 2]
-            n_dot_x = ((r00 * n0 + r01 * n1 + r02 * n2) * X0 + (r10 * n0 + r11 * n1 + r12 * n2) * X1
-                       + (r20 * n0 + r21 * n1 + r22 * n2) * X2)
-            z = X2
-            depth[p] = z
-            visibility[h, p] = 1.0 if (n_dot_x < 0.0) and (z > MIN_DEPTH) else 0.0
-            if z <= MIN_DEPTH:
-                z = 1.0
-            iz = 1.0 / z
-            pix[h, p, 0] = fx * X0 * iz + cx
-            pix[h, p, 1] = fy * X1 * iz + cy
-            # d(u, v)/dX = [[fx/z, 0, -fx X/z^2], [0, fy/z, -fy Y/z^2]]; its rows times R are (A0, A1, A2), (B0, B1, B2).
-            a0, a2 = fx * iz, -fx * X0 * iz * iz
-            b1, b2 = fy * iz, -fy * X1 * iz * iz
-            A0, A1, A2 = a0 * r00 + a2 * r20, a0 * r01 + a2 * r21, a0 * r02 + a2 * r22
-            B0, B1, B2 = b1 * r10 + b2 * r20, b1 * r11 + b2 * r21, b1 * r12 + b2 * r22
-            flow[h, p, 0] = a0 * Xd0 + a2 * Xd2
-            flow[h, p, 1] = b1 * Xd1 + b2 * Xd2
-            for which in range(2):
-                cov = pos_cov if which == 0 else vel_cov
-                c00, c01, c02 = cov[s, p, 0, 0], cov[s, p, 0, 1], cov[s, p, 0, 2]
-                c11, c12, c22 = cov[s, p, 1, 1], cov[s, p, 1, 2], cov[s, p, 2, 2]
-                ta0, ta1, ta2 = A0 * c00 + A1 * c01 + A2 * c02, A0 * c01 + A1 * c11 + A2 * c12, A0 * c02 + A1 * c12 + A2 * c22
-                tb0, tb1, tb2 = B0 * c00 + B1 * c01 + B2 * c02, B0 * c01 + B1 * c11 + B2 * c12, B0 * c02 + B1 * c12 + B2 * c22
-                out = pix_cov if which == 0 else flow_cov
-                out[h, p, 0, 0] = ta0 * A0 + ta1 * A1 + ta2 * A2
-                out[h, p, 0, 1] = out[h, p, 1, 0] = ta0 * B0 + ta1 * B1 + ta2 * B2
-                out[h, p, 1, 1] = tb0 * B0 + tb1 * B1 + tb2 * B2
-        if occ_radius > 0.0:
-            _self_occlusion(pix[h], depth, fy * occ_radius, occ_depth, visibility[h], cell, count, members,
-                            inv_reach2, near)
+    r00, r01, r02 = rot[0, 0], rot[0, 1], rot[0, 2]
+    r10, r11, r12 = rot[1, 0], rot[1, 1], rot[1, 2]
+    r20, r21, r22 = rot[2, 0], rot[2, 1], rot[2, 2]
+    t0, t1, t2 = trans[0], trans[1], trans[2]
+    for p in range(P):
+        x0, x1, x2 = pos[p, 0], pos[p, 1], pos[p, 2]
+        X0 = t0 + r00 * x0 + r01 * x1 + r02 * x2
+        X1 = t1 + r10 * x0 + r11 * x1 + r12 * x2
+        X2 = t2 + r20 * x0 + r21 * x1 + r22 * x2
+        v0, v1, v2 = vel[p, 0], vel[p, 1], vel[p, 2]
+        Xd0 = r00 * v0 + r01 * v1 + r02 * v2 - e0 - (w1 * X2 - w2 * X1)
+        Xd1 = r10 * v0 + r11 * v1 + r12 * v2 - e1 - (w2 * X0 - w0 * X2)
+        Xd2 = r20 * v0 + r21 * v1 + r22 * v2 - e2 - (w0 * X1 - w1 * X0)
+        n0, n1, n2 = normal[p, 0], normal[p, 1], normal[p, 2]
+        n_dot_x = ((r00 * n0 + r01 * n1 + r02 * n2) * X0 + (r10 * n0 + r11 * n1 + r12 * n2) * X1
+                   + (r20 * n0 + r21 * n1 + r22 * n2) * X2)
+        z = X2
+        depth[p] = z
+        visibility[p] = 1.0 if (n_dot_x < 0.0) and (z > MIN_DEPTH) else 0.0
+        if z <= MIN_DEPTH:
+            z = 1.0
+        iz = 1.0 / z
+        pix[p, 0] = fx * X0 * iz + cx
+        pix[p, 1] = fy * X1 * iz + cy
+        if not every_point and visibility[p] == 0.0:
+            continue
+        # d(u, v)/dX = [[fx/z, 0, -fx X/z^2], [0, fy/z, -fy Y/z^2]]; its rows times R are (A0, A1, A2), (B0, B1, B2).
+        a0, a2 = fx * iz, -fx * X0 * iz * iz
+        b1, b2 = fy * iz, -fy * X1 * iz * iz
+        A0, A1, A2 = a0 * r00 + a2 * r20, a0 * r01 + a2 * r21, a0 * r02 + a2 * r22
+        B0, B1, B2 = b1 * r10 + b2 * r20, b1 * r11 + b2 * r21, b1 * r12 + b2 * r22
+        flow[p, 0] = a0 * Xd0 + a2 * Xd2
+        flow[p, 1] = b1 * Xd1 + b2 * Xd2
+        for which in range(2):
+            cov = pos_cov if which == 0 else vel_cov
+            c00, c01, c02 = cov[p, 0, 0], cov[p, 0, 1], cov[p, 0, 2]
+            c11, c12, c22 = cov[p, 1, 1], cov[p, 1, 2], cov[p, 2, 2]
+            ta0, ta1, ta2 = A0 * c00 + A1 * c01 + A2 * c02, A0 * c01 + A1 * c11 + A2 * c12, A0 * c02 + A1 * c12 + A2 * c22
+            tb0, tb1, tb2 = B0 * c00 + B1 * c01 + B2 * c02, B0 * c01 + B1 * c11 + B2 * c12, B0 * c02 + B1 * c12 + B2 * c22
+            out = pix_cov if which == 0 else flow_cov
+            out[p, 0, 0] = ta0 * A0 + ta1 * A1 + ta2 * A2
+            out[p, 0, 1] = out[p, 1, 0] = ta0 * B0 + ta1 * B1 + ta2 * B2
+            out[p, 1, 1] = tb0 * B0 + tb1 * B1 + tb2 * B2
+
+
+@numba.njit(cache=True)
+def occlusion_work(P):
+    """Work arrays of ``self_occlusion`` for ``P`` points: each point's cell, the cells' counts (at most
+    ``4 P + 1``: above that, one cell), the points sorted by cell, each footprint's inverse squared reach and the
+    gathered neighbours ``(4, P)``."""
+    return (np.empty(P, dtype=np.int64), np.empty(4 * P + 1, dtype=np.int64), np.empty(P, dtype=np.int64),
+            np.empty(P), np.empty((4, P)))
 
 
 @numba.njit(cache=True)
@@ -419,14 +450,14 @@ def _bucket(pix, visibility, lo_u, lo_v, reach, nu, nv, cell, count, members):
 
 
 @numba.njit(cache=True)
-def _self_occlusion(pix, depth, focal_radius, min_gap, visibility, cell, count, members, inv_reach2, near):
+def self_occlusion(pix, depth, focal_radius, min_gap, visibility, work):
     """Multiply ``visibility`` ``(P,)`` by the footprints of the nearer visible points (see ``to_image``).
 
-    Footprints end at two radii, so each point only looks at the grid cells (of the largest footprint's size)
-    around it: the products of the double loop over all pairs, in a fraction of its time. ``cell``,
-    ``count``, ``members``, ``inv_reach2``, ``near``: work arrays of ``P``, ``P + 1`` (at least), ``P`` integers,
-    ``P`` floats (each footprint's inverse squared reach, so that the pair loop does not divide) and ``(4, P)``
-    floats (the gathered neighbours)."""
+    Up to ``_ALL_PAIRS`` visible points, each runs over all of them in one loop without branches, which
+    vectorises. Above, the footprints' end at two radii pays: each point only looks at the grid cells (of the
+    largest footprint's size) around it, the same products in a fraction of the pairs. ``work``:
+    ``occlusion_work(P)``."""
+    cell, count, members, inv_reach2, near = work
     P = len(depth)
     near_u, near_v, near_z, near_inv = near[0], near[1], near[2], near[3]
     reach = 0.0
@@ -434,13 +465,21 @@ def _self_occlusion(pix, depth, focal_radius, min_gap, visibility, cell, count, 
     n_front = 0
     for q in range(P):
         if visibility[q] > 0.0:
-            n_front += 1
             reach_q = 2.0 * focal_radius / depth[q]
             inv_reach2[q] = 1.0 / (reach_q * reach_q)
+            near_u[n_front], near_v[n_front], near_z[n_front], near_inv[n_front] = pix[q, 0], pix[q, 1], depth[q], \
+                inv_reach2[q]
+            n_front += 1
             reach = max(reach, reach_q)
             lo_u, hi_u = min(lo_u, pix[q, 0]), max(hi_u, pix[q, 0])
             lo_v, hi_v = min(lo_v, pix[q, 1]), max(hi_v, pix[q, 1])
     if n_front < 2:
+        return
+    if n_front <= _ALL_PAIRS:
+        for p in range(P):
+            if visibility[p] > 0.0:
+                visibility[p] *= _cover(pix[p, 0], pix[p, 1], depth[p] - min_gap, near_u, near_v, near_z, near_inv,
+                                        n_front)
         return
     nu = int((hi_u - lo_u) / reach) + 1
     nv = int((hi_v - lo_v) / reach) + 1
