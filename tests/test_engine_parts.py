@@ -426,8 +426,9 @@ def test_compiled_refinement_equals_the_numpy_steps(body, fix_pose, iterations, 
 
 
 def test_compiled_rotation_vector_and_matrix_match_geometry(rng):
-    """The compiled steps' rotation log (Shepperd's quaternion, each of its four branches) and exp against
-    ``geometry``: random rotations, half turns about each axis and nearby, and steps down to 1e-10 rad."""
+    """The compiled steps' rotation log (Shepperd's quaternion, each of its four branches; also ``Recovery.qpos``'s
+    quaternion) and exp against ``geometry``: random rotations, half turns about each axis and nearby, and steps
+    down to 1e-10 rad."""
     from harness.engine.recovery import _rotation_matrix, _rotation_vector
 
     vectors = [rng.normal(0, 1, 3) for _ in range(20)] + [rng.normal(0, 1e-10, 3), np.zeros(3)]
@@ -439,6 +440,10 @@ def test_compiled_rotation_vector_and_matrix_match_geometry(rng):
         _rotation_matrix(v, mat)
         np.testing.assert_allclose(mat, geometry.to_matrix(q), rtol=0, atol=1e-14)
         _rotation_vector(mat, out)
+        quat = Recovery(np.zeros(50), np.zeros(3), mat).qpos[3:7]
+        reference = geometry.from_matrix(mat)          # w >= 0 too; a half turn (w = 0) has two signs
+        np.testing.assert_allclose(quat * np.sign(quat @ reference), reference, rtol=0, atol=1e-14)
+        assert quat[0] >= 0
         expected = geometry.log(geometry.from_matrix(mat))
         if np.linalg.norm(expected) > np.pi - 1e-9:          # a half turn: v and -v are the same rotation
             expected = expected * np.sign(expected @ out)

@@ -48,8 +48,12 @@ class Recovery:
 
     @property
     def qpos(self) -> np.ndarray:
-        """``(57,)``: base position, base quaternion (camera from base), angles."""
-        return np.concatenate([self.position, geometry.from_matrix(self.rotation), self.angles])
+        """``(57,)``: base position, base quaternion (camera from base, w >= 0), angles."""
+        out = np.empty(57)
+        out[:3] = self.position
+        _quaternion(np.ascontiguousarray(self.rotation, dtype=float), out[3:7])
+        out[7:] = self.angles
+        return out
 
 
 @dataclass(frozen=True)
@@ -213,8 +217,21 @@ def _normal_equations(tree, point_body, x, jac, target, mass, camera, noise_px, 
 
 @numba.njit(cache=True)
 def _rotation_vector(m, out):
-    """The rotation vector (angle in [0, pi]) of a rotation matrix ``m``: its quaternion by Shepperd's method
-    (the largest of ``w, x, y, z`` first, so that no division is by a small number), then ``geometry.log``."""
+    """The rotation vector (angle in [0, pi]) of a rotation matrix ``m``: its quaternion (``_quaternion``), then
+    ``geometry.log``."""
+    q = np.empty(4)
+    _quaternion(m, q)
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    s = np.sqrt(x * x + y * y + z * z)
+    scale = 2.0 * np.arctan2(s, w) / s if s > 1e-12 else 2.0 / max(w, 1e-300)
+    out[0], out[1], out[2] = scale * x, scale * y, scale * z
+
+
+@numba.njit(cache=True)
+def _quaternion(m, out):
+    """The unit quaternion ``(w, x, y, z)``, ``w >= 0``, of a rotation matrix ``m`` by Shepperd's method (the
+    largest of ``|w|, |x|, |y|, |z|`` first, so that no division is by a small number): ``geometry.from_matrix``
+    without its 4 x 4 eigenproblem."""
     trace = m[0, 0] + m[1, 1] + m[2, 2]
     if trace >= max(m[0, 0], m[1, 1], m[2, 2]):
         w = 0.5 * np.sqrt(1.0 + trace)
@@ -228,11 +245,8 @@ def _rotation_vector(m, out):
     else:
         z = 0.5 * np.sqrt(1.0 - m[0, 0] - m[1, 1] + m[2, 2])
         w, x, y = (m[1, 0] - m[0, 1]) / (4 * z), (m[0, 2] + m[2, 0]) / (4 * z), (m[1, 2] + m[2, 1]) / (4 * z)
-    if w < 0.0:
-        w, x, y, z = -w, -x, -y, -z
-    s = np.sqrt(x * x + y * y + z * z)
-    scale = 2.0 * np.arctan2(s, w) / s if s > 1e-12 else 2.0 / max(w, 1e-300)
-    out[0], out[1], out[2] = scale * x, scale * y, scale * z
+    scale = (-1.0 if w < 0.0 else 1.0) / np.sqrt(w * w + x * x + y * y + z * z)    # unit, as an eigenvector is
+    out[0], out[1], out[2], out[3] = scale * w, scale * x, scale * y, scale * z
 
 
 @numba.njit(cache=True)
