@@ -290,7 +290,8 @@ def pose_log_likelihoods(flows: np.ndarray, intr: Intrinsics, rot: np.ndarray, t
     ``rot``, ``trans`` (the same arguments and pairing), with the points in ``open_mask`` held, in one pass per
     hypothesis that keeps no ``(H, P, ...)`` image arrays: their writing and reading cost more than the
     projection itself (fresh memory at 500 hypotheses of 150 points is 8 MB a call)."""
-    poses = projection_arguments(intr, rot, trans, dist, camera_motion, state_index, occlusion)
+    poses = projection_arguments(intr, rot, trans, dist, camera_motion=camera_motion, state_index=state_index,
+                                 occlusion=occlusion)
     columns, _, _, scalars = _prepared(flows, None, model, None)
     open_cells, inv_cell = (np.zeros((0, 0), dtype=np.bool_), 0.0) if open_mask is None else (
         np.ascontiguousarray(open_mask.open, dtype=np.bool_), 1.0 / open_mask.cell)

@@ -153,7 +153,6 @@ def _normal_equations(tree, point_body, x, jac, target, mass, camera, noise_px, 
     ``A`` once per body. Returns False (and leaves ``A``, ``b``) when a point is nearer the camera than
     ``MIN_DEPTH``."""
     Q, J = jac.shape[0], jac.shape[2]
-    fx, fy, cx, cy = camera[0], camera[1], camera[2], camera[3]
     chain, chain_len = tree[7], tree[8]
     X = np.empty((Q, 3))
     for i in range(Q):
@@ -180,30 +179,8 @@ def _normal_equations(tree, point_body, x, jac, target, mass, camera, noise_px, 
         block[:n, :n] = 0.0
         block_b[:n] = 0.0
         for i in range(first, last):
-            iz = 1.0 / X[i, 2]
-            w = mass[i] / (noise_px**2 + (fy * spread / X[i, 2]) ** 2)
-            # P = [[fx/Z, 0, -fx X/Z^2], [0, fy/Z, -fy Y/Z^2]]; P R row by row.
-            pu0, pu2 = fx * iz, -fx * X[i, 0] * iz * iz
-            pv1, pv2 = fy * iz, -fy * X[i, 1] * iz * iz
-            for c in range(3):
-                PR[0, c] = pu0 * rot[0, c] + pu2 * rot[2, c]
-                PR[1, c] = pv1 * rot[1, c] + pv2 * rot[2, c]
-            residual = (target[i, 0] - (fx * X[i, 0] * iz + cx), target[i, 1] - (fy * X[i, 1] * iz + cy))
-            for row in range(2):
-                p0, p1, p2 = PR[row, 0], PR[row, 1], PR[row, 2]
-                for c in range(L):
-                    k = column[c]
-                    g[c] = p0 * jac[i, 0, k] + p1 * jac[i, 1, k] + p2 * jac[i, 2, k]
-                g[L], g[L + 1], g[L + 2] = (pu0, 0.0, pu2) if row == 0 else (0.0, pv1, pv2)
-                # -P R [x]_x, column by column: -(P R) (e_c x x).
-                g[L + 3] = -(p1 * x[i, 2] - p2 * x[i, 1])
-                g[L + 4] = -(p2 * x[i, 0] - p0 * x[i, 2])
-                g[L + 5] = -(p0 * x[i, 1] - p1 * x[i, 0])
-                for c in range(n):
-                    wg = w * g[c]
-                    block_b[c] += wg * residual[row]
-                    for d in range(c, n):
-                        block[c, d] += wg * g[d]
+            _add_point(X[i], x[i], jac[i], target[i], mass[i], camera, noise_px, spread, rot, column[:L], g[:n], PR,
+                       block, block_b)
         for c in range(n):
             b[column[c]] += block_b[c]
             for d in range(c, n):
@@ -213,6 +190,39 @@ def _normal_equations(tree, point_body, x, jac, target, mass, camera, noise_px, 
         for q in range(k):
             A[k, q] = A[q, k]
     return True
+
+
+@numba.njit(cache=True)
+def _add_point(X, x, jac, target, mass, camera, noise_px, spread, rot, chain, g, PR, block, block_b):
+    """Add one point's ``W G^T G`` and ``W G^T (u_bar - u)`` to its body's dense block of columns (its chain's
+    hinges ``chain``, then the pose's six); ``X``: the point in the camera frame, ``x`` in the base frame, ``jac``
+    its Jacobian ``(3, J)``; ``g``, ``PR``: work arrays."""
+    fx, fy, cx, cy = camera[0], camera[1], camera[2], camera[3]
+    L, n = len(chain), len(g)
+    iz = 1.0 / X[2]
+    w = mass / (noise_px**2 + (fy * spread / X[2]) ** 2)
+    # P = [[fx/Z, 0, -fx X/Z^2], [0, fy/Z, -fy Y/Z^2]]; P R row by row.
+    pu0, pu2 = fx * iz, -fx * X[0] * iz * iz
+    pv1, pv2 = fy * iz, -fy * X[1] * iz * iz
+    for c in range(3):
+        PR[0, c] = pu0 * rot[0, c] + pu2 * rot[2, c]
+        PR[1, c] = pv1 * rot[1, c] + pv2 * rot[2, c]
+    residual = (target[0] - (fx * X[0] * iz + cx), target[1] - (fy * X[1] * iz + cy))
+    for row in range(2):
+        p0, p1, p2 = PR[row, 0], PR[row, 1], PR[row, 2]
+        for c in range(L):
+            k = chain[c]
+            g[c] = p0 * jac[0, k] + p1 * jac[1, k] + p2 * jac[2, k]
+        g[L], g[L + 1], g[L + 2] = (pu0, 0.0, pu2) if row == 0 else (0.0, pv1, pv2)
+        # -P R [x]_x, column by column: -(P R) (e_c x x).
+        g[L + 3] = -(p1 * x[2] - p2 * x[1])
+        g[L + 4] = -(p2 * x[0] - p0 * x[2])
+        g[L + 5] = -(p0 * x[1] - p1 * x[0])
+        for c in range(n):
+            wg = w * g[c]
+            block_b[c] += wg * residual[row]
+            for d in range(c, n):
+                block[c, d] += wg * g[d]
 
 
 @numba.njit(cache=True)

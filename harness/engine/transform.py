@@ -187,7 +187,7 @@ def _per_state(a: np.ndarray, S: int) -> np.ndarray:
 def _carry(tree, angles, angle_var, rates, rate_var, base_linear, base_linear_var, base_angular, base_angular_var,
            point_body, point_local, point_normal, spread, pos, pos_cov, vel, vel_cov, normal):
     """The loop of ``state_point_distributions``: per state the body frames, the points with their Jacobians and
-    normals, then the moments of the module docstring, summed over the hinges on each point's chain (the other
+    normals, then each point's moments (``_point_moments``), summed over the hinges on its chain (the other
     columns of J are zero). ``Jdot`` only when the state has angle variance: ``H`` enters only through
     ``H S_theta H^T``."""
     S, J = angles.shape
@@ -203,58 +203,69 @@ def _carry(tree, angles, angle_var, rates, rate_var, base_linear, base_linear_va
         for k in range(J):
             with_jdot |= angle_var[s, k] > 0.0
         if with_jdot:
-            # Jdot = (J(theta + h theta_dot) - J(theta - h theta_dot)) / 2h, h = _JDOT_STEP / max |theta_dot|.
-            h = _JDOT_STEP / max(np.abs(rates[s]).max(), 1e-12)
-            for sign in (1.0, -1.0):
-                for k in range(J):
-                    moved[k] = angles[s, k] + sign * h * rates[s, k]
-                body_frames_into(tree, moved, eye, zero, frames)
-                points_and_jacobians_into(tree, frames, point_body, point_local, scratch, jdot if sign > 0 else lo)
-            for i in range(P):
-                for r in range(3):
-                    for k in range(J):
-                        jdot[i, r, k] = (jdot[i, r, k] - lo[i, r, k]) / (2 * h)
+            _jdot_into(tree, angles[s], rates[s], point_body, point_local, frames, moved, scratch, jdot, lo)
         body_frames_into(tree, angles[s], eye, zero, frames)
         points_and_jacobians_into(tree, frames, point_body, point_local, pos[s], jac)
         R = frames[0]
-        w, v = base_angular[s], base_linear[s]
         for i in range(P):
             b = point_body[i]
-            x = pos[s, i]
             for r in range(3):
                 normal[s, i, r] = R[b, r, 0] * point_normal[i, 0] + R[b, r, 1] * point_normal[i, 1] \
                     + R[b, r, 2] * point_normal[i, 2]
-            # xdot = J theta_dot + v + omega x x; H = Jdot + [omega]_x J on the chain's columns.
-            cross = (w[1] * x[2] - w[2] * x[1], w[2] * x[0] - w[0] * x[2], w[0] * x[1] - w[1] * x[0])
-            for r in range(3):
-                acc = v[r] + cross[r]
-                for c in range(chain_len[b]):
-                    k = chain[b, c]
-                    acc += jac[i, r, k] * rates[s, k]
-                vel[s, i, r] = acc
-            for c in range(chain_len[b]):
-                k = chain[b, c]
-                j0, j1, j2 = jac[i, 0, k], jac[i, 1, k], jac[i, 2, k]
-                d0, d1, d2 = (jdot[i, 0, k], jdot[i, 1, k], jdot[i, 2, k]) if with_jdot else (0.0, 0.0, 0.0)
-                H[0, k] = d0 + w[1] * j2 - w[2] * j1
-                H[1, k] = d1 + w[2] * j0 - w[0] * j2
-                H[2, k] = d2 + w[0] * j1 - w[1] * j0
-            skew_x[0, 0], skew_x[0, 1], skew_x[0, 2] = 0.0, -x[2], x[1]
-            skew_x[1, 0], skew_x[1, 1], skew_x[1, 2] = x[2], 0.0, -x[0]
-            skew_x[2, 0], skew_x[2, 1], skew_x[2, 2] = -x[1], x[0], 0.0
-            for r in range(3):
-                for q in range(r, 3):
-                    # pos: J S_theta J^T + s^2 I; vel: H S_theta H^T + J S_rate J^T + S_v + [x]_x S_omega [x]_x^T.
-                    pc = spread * spread if r == q else 0.0
-                    vc = base_linear_var[s, r] if r == q else 0.0
-                    for c in range(chain_len[b]):
-                        k = chain[b, c]
-                        pc += jac[i, r, k] * angle_var[s, k] * jac[i, q, k]
-                        vc += H[r, k] * angle_var[s, k] * H[q, k] + jac[i, r, k] * rate_var[s, k] * jac[i, q, k]
-                    for k in range(3):
-                        vc += skew_x[r, k] * base_angular_var[s, k] * skew_x[q, k]
-                    pos_cov[s, i, r, q] = pos_cov[s, i, q, r] = pc
-                    vel_cov[s, i, r, q] = vel_cov[s, i, q, r] = vc
+            _point_moments(pos[s, i], jac[i], jdot[i], with_jdot, chain[b, :chain_len[b]], rates[s], angle_var[s],
+                           rate_var[s], base_linear[s], base_linear_var[s], base_angular[s], base_angular_var[s],
+                           spread, vel[s, i], pos_cov[s, i], vel_cov[s, i], H, skew_x)
+
+
+@numba.njit(cache=True)
+def _jdot_into(tree, angles, rates, point_body, point_local, frames, moved, scratch, jdot, lo):
+    """``Jdot = (J(theta + h theta_dot) - J(theta - h theta_dot)) / 2h`` of one state into ``jdot`` ``(P, 3, J)``,
+    ``h = _JDOT_STEP / max |theta_dot|`` (``lo``, ``moved``, ``scratch``: work arrays)."""
+    h = _JDOT_STEP / max(np.abs(rates).max(), 1e-12)
+    eye, zero = np.eye(3), np.zeros(3)
+    for sign in (1.0, -1.0):
+        for k in range(len(angles)):
+            moved[k] = angles[k] + sign * h * rates[k]
+        body_frames_into(tree, moved, eye, zero, frames)
+        points_and_jacobians_into(tree, frames, point_body, point_local, scratch, jdot if sign > 0 else lo)
+    for i in range(jdot.shape[0]):
+        for r in range(3):
+            for k in range(jdot.shape[2]):
+                jdot[i, r, k] = (jdot[i, r, k] - lo[i, r, k]) / (2 * h)
+
+
+@numba.njit(cache=True)
+def _point_moments(x, jac, jdot, with_jdot, chain, rates, angle_var, rate_var, v, v_var, w, w_var, spread, vel,
+                   pos_cov, vel_cov, H, skew_x):
+    """One point's velocity ``xdot = J theta_dot + v + omega x x`` and its position and velocity covariances
+    (the module docstring), over the hinges ``chain`` that move it (``H``, ``skew_x``: work arrays)."""
+    cross = (w[1] * x[2] - w[2] * x[1], w[2] * x[0] - w[0] * x[2], w[0] * x[1] - w[1] * x[0])
+    for r in range(3):
+        acc = v[r] + cross[r]
+        for k in chain:
+            acc += jac[r, k] * rates[k]
+        vel[r] = acc
+    for k in chain:                     # H = Jdot + [omega]_x J
+        j0, j1, j2 = jac[0, k], jac[1, k], jac[2, k]
+        d0, d1, d2 = (jdot[0, k], jdot[1, k], jdot[2, k]) if with_jdot else (0.0, 0.0, 0.0)
+        H[0, k] = d0 + w[1] * j2 - w[2] * j1
+        H[1, k] = d1 + w[2] * j0 - w[0] * j2
+        H[2, k] = d2 + w[0] * j1 - w[1] * j0
+    skew_x[0, 0], skew_x[0, 1], skew_x[0, 2] = 0.0, -x[2], x[1]
+    skew_x[1, 0], skew_x[1, 1], skew_x[1, 2] = x[2], 0.0, -x[0]
+    skew_x[2, 0], skew_x[2, 1], skew_x[2, 2] = -x[1], x[0], 0.0
+    for r in range(3):
+        for q in range(r, 3):
+            # pos: J S_theta J^T + s^2 I; vel: H S_theta H^T + J S_rate J^T + S_v + [x]_x S_omega [x]_x^T.
+            pc = spread * spread if r == q else 0.0
+            vc = v_var[r] if r == q else 0.0
+            for k in chain:
+                pc += jac[r, k] * angle_var[k] * jac[q, k]
+                vc += H[r, k] * angle_var[k] * H[q, k] + jac[r, k] * rate_var[k] * jac[q, k]
+            for k in range(3):
+                vc += skew_x[r, k] * w_var[k] * skew_x[q, k]
+            pos_cov[r, q] = pos_cov[q, r] = pc
+            vel_cov[r, q] = vel_cov[q, r] = vc
 
 
 def database_point_distributions(db: MotionDatabase, body: BodyModel, points: SurfacePoints,
@@ -299,7 +310,8 @@ def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDi
     The output has one row per pair. ``camera_motion``: ``(6,)`` camera linear and angular velocity in its
     own frame, or None.
     """
-    poses = projection_arguments(intr, rot, trans, dist, camera_motion, state_index, occlusion)
+    poses = projection_arguments(intr, rot, trans, dist, camera_motion=camera_motion, state_index=state_index,
+                                 occlusion=occlusion)
     H, P = len(poses[2]), dist.pos.shape[1]
     out = (np.empty((H, P, 2)), np.empty((H, P, 2, 2)), np.empty((H, P, 2)), np.empty((H, P, 2, 2)),
            np.empty((H, P)))
@@ -307,7 +319,7 @@ def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDi
     return ImageDistributions(*out)
 
 
-def projection_arguments(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDistributions,
+def projection_arguments(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDistributions, *,
                          camera_motion: np.ndarray | None, state_index: np.ndarray | None,
                          occlusion: tuple[float, float] | None) -> tuple:
     """What the projection kernels take for ``to_image``'s arguments (checked, paired): the poses, each
