@@ -12,14 +12,12 @@ from engine_fixtures import CLASSES, synthetic_demos
 from harness import geometry
 from harness.body import forward_points, forward_points_and_jacobians, sample_surface
 from harness.engine import MotionDatabase, Recognizer, motion_features, recognize_features
-from harness.engine.likelihood import (FlowModel, flow_log_likelihoods, pose_log_likelihoods, responsibilities,
-                                       tempered)
-from harness.engine.open_region import OpenRegion
+from harness.engine.likelihood import FlowModel, flow_log_likelihoods, responsibilities, tempered
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
                                             motion_mean, pose_mixture_log_density, propose, propose_many,
                                             systematic_resample, upright_orientations)
 from harness.engine.recovery import Prior, Recovery, refine_pose
-from harness.engine.transform import ImageDistributions, PointDistributions, patch_std, to_image
+from harness.engine.transform import ImageDistributions, patch_std
 from harness.engine.vector_math import atan_ratio, exp_into
 from harness.errors import EngineError
 from harness.pinhole import Intrinsics, project, projection_jacobian
@@ -158,52 +156,6 @@ def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations,
     vmax = 0.25 * 640 * fps
     np.testing.assert_allclose(flow_log_likelihoods(flows, none, FlowModel(noise, fps, W, Hh, eps)),
                                np.log(eps / (W * Hh * np.pi * vmax**2)))
-
-
-def _random_point_distributions(rng, S, P):
-    """``S`` states of ``P`` points scattered over a body-sized box (base frame), with wide covariances."""
-    A, B = rng.normal(0, 0.03, (S, P, 3, 3)), rng.normal(0, 0.3, (S, P, 3, 3))
-    normal = rng.normal(0, 1, (S, P, 3))
-    return PointDistributions(rng.uniform(-1, 1, (S, P, 3)) * [0.25, 0.25, 0.9], A @ np.swapaxes(A, -1, -2),
-                              rng.normal(0, 1, (S, P, 3)), B @ np.swapaxes(B, -1, -2),
-                              normal / np.linalg.norm(normal, axis=-1, keepdims=True), np.zeros((S, 3)), np.zeros((S, 3)))
-
-
-@pytest.mark.parametrize("pairing", ["one pose, many states", "many poses, one state", "paired", "state index"])
-@pytest.mark.parametrize("occlusion, camera_motion, open_region", [(None, False, False), ((0.1, 0.08), False, False),
-                                                                   ((0.1, 0.08), True, True), (None, True, True)])
-def test_pose_likelihood_equals_projection_then_likelihood(rng, pairing, occlusion, camera_motion, open_region):
-    """``pose_log_likelihoods`` (projection, self-occlusion, held points and likelihood in one pass per
-    hypothesis) against ``to_image``, the open region's ``held`` and ``flow_log_likelihoods`` one after the other,
-    in every pairing of poses and states, with and without self-occlusion, camera motion and open region (the
-    gate and the outlier term matter too: flows near and far)."""
-    P, n_poses = 40, 6
-    intr = Intrinsics.from_fov(45.0, 640, 480)
-    S = {"one pose, many states": 5, "many poses, one state": 1, "paired": n_poses, "state index": 3}[pairing]
-    dists = _random_point_distributions(rng, S, P)
-    n_poses = 1 if pairing == "one pose, many states" else n_poses
-    rot = geometry.to_matrix(upright_orientations(rng.uniform(-np.pi, np.pi, n_poses), camera_pitch(0.2)))
-    trans = np.column_stack([rng.normal(0, 0.3, n_poses), rng.normal(0, 0.3, n_poses), rng.uniform(2.5, 4.5, n_poses)])
-    state_index = rng.integers(0, S, n_poses) if pairing == "state index" else None
-    ego = np.array([0.3, -0.1, 0.2, 0.05, -0.2, 0.1]) if camera_motion else None
-    img = to_image(intr, rot, trans, dists, camera_motion=ego, state_index=state_index, occlusion=occlusion)
-    assert occlusion is None or np.any((img.visibility > 0) & (img.visibility < 1))      # the body hides itself
-    near = img.pix[0][img.visibility[0] > 0][:9]
-    flows = np.concatenate([np.concatenate([near + rng.normal(0, 3, near.shape), rng.uniform(0, 640, (4, 2))]),
-                            rng.normal(0, 60, (len(near) + 4, 2))], axis=1)
-    model = FlowModel(1.0, 30.0, 640, 480, weight_iterations=2, smoothing=10.0)
-    mask = None
-    if open_region:
-        region = OpenRegion(640, 480, 16.0, 30)
-        mask = region.update(np.concatenate([flows[:5], rng.uniform(0, 640, (20, 4))]))
-        assert np.any(mask.held(img.pix) & (img.visibility > 0))
-    expected = flow_log_likelihoods(flows, img, model, held=None if mask is None else mask.held(img.pix))
-    got = pose_log_likelihoods(flows, intr, rot, trans, dists, model, camera_motion=ego, state_index=state_index,
-                               occlusion=occlusion, open_mask=mask)
-    assert got.shape == expected.shape == (len(img.visibility), len(flows))
-    np.testing.assert_allclose(got, expected, rtol=1e-12)
-    empty = pose_log_likelihoods(np.empty((0, 4)), intr, rot, trans, dists, model, state_index=state_index)
-    assert empty.shape == (len(img.visibility), 0)
 
 
 def test_the_kernels_elementary_functions_match_numpys():

@@ -27,11 +27,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from harness.engine.open_region import OpenMask, held_pixels
-from harness.engine.transform import (ImageDistributions, PointDistributions, occlusion_work, project_pose,
-                                      projection_arguments, self_occlusion)
+from harness.engine.transform import ImageDistributions
 from harness.engine.vector_math import FAST, exp_into
-from harness.pinhole import Intrinsics
 
 _GATE = 60.0   # squared Mahalanobis distance in position beyond which a point's term is taken as zero
 
@@ -182,36 +179,6 @@ def _per_flow(n, total, log_in, log_out, out):
 
 
 @numba.njit(cache=True)
-def _pose_loglik_kernel(flows, n_flows, rot, trans, pose_index, state_index, pos, pos_cov, vel, vel_cov, normal,
-                        camera, ego, occ_radius, occ_depth, open_cells, inv_cell, pos_var, vel_var, log_in, log_out,
-                        weight_iterations, smoothing):
-    """``_flow_loglik_kernel`` of ``to_image``'s projections, one hypothesis at a time in work arrays of ``P``
-    points: projected (the covariances of the camera-facing points only), hidden by the body, held where the
-    open region ``open_cells`` is (none when it has no cells), scored."""
-    H, P = len(state_index), pos.shape[1]
-    M = flows.shape[1]
-    out = np.empty((H, n_flows))
-    work = _work(M, P)
-    pix, pix_cov, flow, flow_cov = np.empty((P, 2)), np.empty((P, 2, 2)), np.empty((P, 2)), np.empty((P, 2, 2))
-    visibility, depth, held = np.empty(P), np.empty(P), np.zeros(P, dtype=np.bool_)
-    occlusion = occlusion_work(P)
-    p_in = np.exp(log_in)
-    p_out = np.exp(log_out)
-    for h in range(H):
-        s, g = state_index[h], pose_index[h]
-        project_pose(rot[g], trans[g], pos[s], pos_cov[s], vel[s], vel_cov[s], normal[s], camera, ego, False, pix,
-                     pix_cov, flow, flow_cov, visibility, depth)
-        if occ_radius > 0.0:
-            self_occlusion(pix, depth, camera[1] * occ_radius, occ_depth, visibility, occlusion)
-        if open_cells.size:
-            held_pixels(pix, open_cells, inv_cell, held)
-        n = _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, p_in, p_out,
-                        weight_iterations, smoothing, work)
-        _per_flow(n, work[5], log_in, log_out, out[h])
-    return out
-
-
-@numba.njit(cache=True)
 def _responsibilities_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in,
                              log_out, weight_iterations, smoothing):
     P = visibility.shape[0]
@@ -246,22 +213,20 @@ class FlowModel:
     smoothing: float = 0.0
 
 
-def _prepared(flows: np.ndarray, img: ImageDistributions | None, model: FlowModel, held: np.ndarray | None) -> tuple:
+def _prepared(flows: np.ndarray, img: ImageDistributions, model: FlowModel, held: np.ndarray | None) -> tuple:
     """The kernels' arguments: the flows as ``(4, M')`` columns with their number ``M`` (``M'`` rounded up to a
     multiple of ``_LANES`` with flows that are nowhere, NaN: their densities are zero, and the kernels' loops over
     flows run without remainders, measured 20% faster at 41 flows), the projected distributions, which points
-    are held (both None without ``img``), and the scalars (observation noise's position and velocity variances, log
+    are held, and the scalars (observation noise's position and velocity variances, log
     inlier and outlier terms, EM steps, pseudo-flows)."""
     flows = np.ascontiguousarray(flows, dtype=float).reshape(-1, 4)
     max_flow = 0.25 * max(model.width, model.height) * model.fps if model.max_flow is None else model.max_flow
     log_out = np.log(model.outlier_prob) - np.log(model.width * model.height) - np.log(np.pi * max_flow**2)
     log_in = np.log1p(-model.outlier_prob)
-    dists = None if img is None else (
-        np.ascontiguousarray(img.pix), np.ascontiguousarray(img.pix_cov), np.ascontiguousarray(img.flow),
-        np.ascontiguousarray(img.flow_cov), np.ascontiguousarray(img.visibility, dtype=float))
-    if img is not None:
-        held = (np.zeros(img.visibility.shape, dtype=np.bool_) if held is None
-                else np.ascontiguousarray(np.broadcast_to(held, img.visibility.shape), dtype=np.bool_))
+    dists = (np.ascontiguousarray(img.pix), np.ascontiguousarray(img.pix_cov), np.ascontiguousarray(img.flow),
+             np.ascontiguousarray(img.flow_cov), np.ascontiguousarray(img.visibility, dtype=float))
+    held = (np.zeros(img.visibility.shape, dtype=np.bool_) if held is None
+            else np.ascontiguousarray(np.broadcast_to(held, img.visibility.shape), dtype=np.bool_))
     scalars = (float(model.noise_px**2), float(2.0 * (model.noise_px * model.fps) ** 2), log_in, log_out,
                int(model.weight_iterations), float(model.smoothing))
     M = len(flows)
@@ -280,22 +245,6 @@ def flow_log_likelihoods(flows: np.ndarray, img: ImageDistributions, model: Flow
     """
     columns, dists, held, scalars = _prepared(flows, img, model, held)
     return _flow_loglik_kernel(*columns, *dists, held, *scalars)
-
-
-def pose_log_likelihoods(flows: np.ndarray, intr: Intrinsics, rot: np.ndarray, trans: np.ndarray,
-                         dist: PointDistributions, model: FlowModel, *, camera_motion: np.ndarray | None = None,
-                         state_index: np.ndarray | None = None, occlusion: tuple[float, float] | None = None,
-                         open_mask: OpenMask | None = None) -> np.ndarray:
-    """``(H, M)``: ``flow_log_likelihoods`` of the flows under ``to_image``'s projections of ``dist`` at the poses
-    ``rot``, ``trans`` (the same arguments and pairing), with the points in ``open_mask`` held, in one pass per
-    hypothesis that keeps no ``(H, P, ...)`` image arrays: their writing and reading cost more than the
-    projection itself (fresh memory at 500 hypotheses of 150 points is 8 MB a call)."""
-    poses = projection_arguments(intr, rot, trans, dist, camera_motion=camera_motion, state_index=state_index,
-                                 occlusion=occlusion)
-    columns, _, _, scalars = _prepared(flows, None, model, None)
-    open_cells, inv_cell = (np.zeros((0, 0), dtype=np.bool_), 0.0) if open_mask is None else (
-        np.ascontiguousarray(open_mask.open, dtype=np.bool_), 1.0 / open_mask.cell)
-    return _pose_loglik_kernel(*columns, *poses, open_cells, inv_cell, *scalars)
 
 
 def tempered(per_flow: np.ndarray, n_eff: float) -> np.ndarray:

@@ -35,12 +35,12 @@ class OpenMask:
         """Whether pixels ``(..., 2)`` lie in the open region (outside the image, or not finite: not)."""
         pix = np.ascontiguousarray(pix, dtype=float)
         out = np.empty(pix.shape[:-1], dtype=np.bool_)
-        held_pixels(pix.reshape(-1, 2), self.open, 1.0 / self.cell, out.reshape(-1))
+        _held(pix.reshape(-1, 2), self.open, 1.0 / self.cell, out.reshape(-1))
         return out
 
 
 @numba.njit(cache=True)
-def held_pixels(pix, open_cells, inv_cell, out):
+def _held(pix, open_cells, inv_cell, out):
     """``out[i]``: whether pixel ``pix[i]`` falls in an open cell (one pass; the weighing asks it of every model
     point of every hypothesis)."""
     rows, cols = open_cells.shape

@@ -310,7 +310,7 @@ def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDi
     The output has one row per pair. ``camera_motion``: ``(6,)`` camera linear and angular velocity in its
     own frame, or None.
     """
-    poses = projection_arguments(intr, rot, trans, dist, camera_motion=camera_motion, state_index=state_index,
+    poses = _projection_arguments(intr, rot, trans, dist, camera_motion=camera_motion, state_index=state_index,
                                  occlusion=occlusion)
     H, P = len(poses[2]), dist.pos.shape[1]
     out = (np.empty((H, P, 2)), np.empty((H, P, 2, 2)), np.empty((H, P, 2)), np.empty((H, P, 2, 2)),
@@ -319,10 +319,10 @@ def to_image(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDi
     return ImageDistributions(*out)
 
 
-def projection_arguments(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDistributions, *,
+def _projection_arguments(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, dist: PointDistributions, *,
                          camera_motion: np.ndarray | None, state_index: np.ndarray | None,
                          occlusion: tuple[float, float] | None) -> tuple:
-    """What the projection kernels take for ``to_image``'s arguments (checked, paired): the poses, each
+    """What ``_project_kernel`` takes for ``to_image``'s arguments (checked, paired): the poses, each
     hypothesis' pose and state, the body-frame distributions, the camera ``(fx, fy, cx, cy)``, its motion
     ``(6,)`` and the self-occlusion's footprint radius and depth gap (zeros: off)."""
     rot = np.ascontiguousarray(rot, dtype=float).reshape(-1, 3, 3)
@@ -357,26 +357,25 @@ _ALL_PAIRS = 256
 @numba.njit(cache=True)
 def _project_kernel(rot, trans, pose_index, state_index, pos, pos_cov, vel, vel_cov, normal, camera, ego, occ_radius,
                     occ_depth, pix, pix_cov, flow, flow_cov, visibility):
-    """The loop of ``to_image``: each hypothesis projected (``project_pose``), then the depth-order visibility
+    """The loop of ``to_image``: each hypothesis projected (``_project_pose``), then the depth-order visibility
     of its points."""
     H, P = pix.shape[0], pos.shape[1]
     depth = np.empty(P)
     occlusion = occlusion_work(P)
     for h in range(H):
         s, g = state_index[h], pose_index[h]
-        project_pose(rot[g], trans[g], pos[s], pos_cov[s], vel[s], vel_cov[s], normal[s], camera, ego, True, pix[h],
+        _project_pose(rot[g], trans[g], pos[s], pos_cov[s], vel[s], vel_cov[s], normal[s], camera, ego, pix[h],
                      pix_cov[h], flow[h], flow_cov[h], visibility[h], depth)
         if occ_radius > 0.0:
             self_occlusion(pix[h], depth, camera[1] * occ_radius, occ_depth, visibility[h], occlusion)
 
 
 @numba.njit(cache=True, fastmath={"contract"})
-def project_pose(rot, trans, pos, pos_cov, vel, vel_cov, normal, camera, ego, every_point, pix, pix_cov, flow,
-                 flow_cov, visibility, depth):
+def _project_pose(rot, trans, pos, pos_cov, vel, vel_cov, normal, camera, ego, pix, pix_cov, flow, flow_cov,
+                 visibility, depth):
     """One hypothesis: X = R x + t, Xdot = R xdot - v_c - w_c x X, u = pi(X), the covariances mapped by
     J = d(u)/dX R as ``(J Sigma) J^T`` (one fused pass over scalars), the facing test into ``visibility`` and the
-    depths. ``every_point`` false: the covariances only of the points that face the camera (the likelihood
-    reads no other)."""
+    depths."""
     P = pos.shape[0]
     fx, fy, cx, cy = camera[0], camera[1], camera[2], camera[3]
     e0, e1, e2, w0, w1, w2 = ego[0], ego[1], ego[2], ego[3], ego[4], ego[5]
@@ -404,8 +403,6 @@ def project_pose(rot, trans, pos, pos_cov, vel, vel_cov, normal, camera, ego, ev
         iz = 1.0 / z
         pix[p, 0] = fx * X0 * iz + cx
         pix[p, 1] = fy * X1 * iz + cy
-        if not every_point and visibility[p] == 0.0:
-            continue
         # d(u, v)/dX = [[fx/z, 0, -fx X/z^2], [0, fy/z, -fy Y/z^2]]; its rows times R are (A0, A1, A2), (B0, B1, B2).
         a0, a2 = fx * iz, -fx * X0 * iz * iz
         b1, b2 = fy * iz, -fy * X1 * iz * iz
