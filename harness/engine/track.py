@@ -219,9 +219,9 @@ class Track:
     def recovered(self, recovery: Recovery) -> None:
         self.recovery = recovery
 
-    def remember(self, index: int) -> None:
-        """Keep this frame's snapshot (after recognition): what re-injection replays from."""
-        self.history.append(Snapshot(index, self.pose, copy.copy(self.recognizer), self.log_evidence))
+    def remember(self, index: int, pose: tuple[np.ndarray, np.ndarray]) -> None:
+        """Keep this frame's snapshot (after recognition at ``pose``): what re-injection replays from."""
+        self.history.append(Snapshot(index, pose, copy.copy(self.recognizer), self.log_evidence))
 
     def record(self) -> TrackRecord:
         """What the track is at the end of this frame."""
