@@ -22,7 +22,10 @@ reached from ``j`` at rate ``A[j, k]`` is left towards ``j`` backwards: with the
     A_rev[k, k] = A[k, k],    A_rev[k, j] ∝ d_j A[j, k]  (j != k),  scaled to 1 - A[k, k]
 
 (a state without a predecessor, the first of a non-cyclic chain, absorbs). The reversed chain starts where
-the forward one ends: a non-cyclic chain's absorbing last state, anywhere in a cyclic one.
+the forward one ends: a non-cyclic chain's absorbing last state, anywhere in a cyclic one. That end state
+absorbs forwards (an infinite stay) but must be left backwards: it takes the mean stay of its chain's other
+states (left absorbing, the reversed recursion could never leave a clip's end rest, and pruning then lost the
+other states: a bow scored 200 nats below its forward evidence along the true path).
 
 The base moves backwards from ``t`` to ``t - 1`` by ``-v_t``, but the reversed loop predicts it with the
 belief of frame ``t - 1``, ``-v_{t-1}``: the motion model is a frame off under acceleration (the process noise
@@ -48,19 +51,32 @@ _REVERSAL_SIGN = np.where(_VELOCITIES, -1.0, 1.0)
 
 
 def reversed_transitions(transmat: np.ndarray) -> np.ndarray:
-    """``(..., S, S)``: each chain's transitions in reversed time (module docstring)."""
+    """``(..., S, S)``: each chain's transitions in reversed time (module docstring). A forward chain's absorbing
+    last state (a non-cyclic primitive's end rest) is where the reversed chain starts; it must be left, so it
+    takes the mean dwell of its chain's other states."""
     a = np.asarray(transmat, dtype=float)
-    stay = np.diagonal(a, axis1=-2, axis2=-1)
+    stay = np.diagonal(a, axis1=-2, axis2=-1).copy()
+    absorbing = stay >= 1.0 - 1e-9
+    chain = _chains(a)
+    others = np.einsum("...ij,...j->...i", chain, np.where(absorbing, 0.0, stay))
+    n_others = np.einsum("...ij,...j->...i", chain, (~absorbing).astype(float))
+    stay = np.where(absorbing & (n_others > 0), others / np.maximum(n_others, 1), stay)
     dwell = 1.0 / np.maximum(1.0 - stay, 1e-12)
-    flow = np.swapaxes(a * dwell[..., :, None], -1, -2)            # flow[k, j] = d_j A[j, k]
     eye = np.eye(a.shape[-1], dtype=bool)
-    flow = np.where(eye, 0.0, flow)
+    flow = np.where(eye, 0.0, np.swapaxes(a * dwell[..., :, None], -1, -2))     # flow[k, j] = d_j A[j, k]
     into = flow.sum(axis=-1, keepdims=True)
-    leave = 1.0 - stay[..., :, None]
-    out = np.where(into > 0, flow / np.where(into > 0, into, 1.0) * leave, 0.0)
+    out = np.where(into > 0, flow / np.where(into > 0, into, 1.0) * (1.0 - stay[..., :, None]), 0.0)
     # A state nothing leads into (the first of a non-cyclic chain) keeps its whole mass backwards.
     stay_rev = np.where(into[..., 0] > 0, stay, 1.0)
     return np.where(eye, stay_rev[..., :, None], out)
+
+
+def _chains(a: np.ndarray) -> np.ndarray:
+    """``(..., S, S)`` float: 1 where two states are in the same chain (connected by transitions either way)."""
+    linked = (a > 0) | np.swapaxes(a > 0, -1, -2) | np.eye(a.shape[-1], dtype=bool)
+    for _ in range(int(np.ceil(np.log2(a.shape[-1]))) + 1):
+        linked = linked | ((linked.astype(float) @ linked.astype(float)) > 0)
+    return linked.astype(float)
 
 
 def reversed_start(transmat: np.ndarray) -> np.ndarray:
@@ -68,19 +84,11 @@ def reversed_start(transmat: np.ndarray) -> np.ndarray:
     without one (cyclic), uniformly over it. Both chains of a both-handed database share the mass equally,
     as their forward starts do."""
     a = np.asarray(transmat, dtype=float)
-    stay = np.diagonal(a, axis1=-2, axis2=-1)
-    absorbing = stay >= 1.0 - 1e-9
-    # Chains are the connected blocks of the transition matrix; a block without an absorbing state is cyclic.
-    reach = (a > 0) | np.eye(a.shape[-1], dtype=bool)
-    for _ in range(int(np.ceil(np.log2(a.shape[-1]))) + 1):
-        reach = reach | ((reach.astype(float) @ reach.astype(float)) > 0)
-    ends = np.where(absorbing, 1.0, 0.0)
-    # Every state: its chain's absorbing states if it has any, else the whole chain.
-    chain_ends = np.einsum("...ij,...j->...i", reach.astype(float), ends)
-    start = np.where(chain_ends > 0, ends, 1.0)
-    # One unit of mass per chain, then normalised over the chains.
-    per_chain = np.einsum("...ij,...j->...i", reach.astype(float), start)
-    start = start / np.where(per_chain > 0, per_chain, 1.0)
+    ends = (np.diagonal(a, axis1=-2, axis2=-1) >= 1.0 - 1e-9).astype(float)
+    chain = _chains(a)
+    # Each chain's absorbing states if it has any, else the whole chain; one unit of mass per chain.
+    start = np.where(np.einsum("...ij,...j->...i", chain, ends) > 0, ends, 1.0)
+    start = start / np.einsum("...ij,...j->...i", chain, start)
     return start / start.sum(axis=-1, keepdims=True)
 
 
