@@ -24,6 +24,7 @@ class TrackerConfig:
     init_depth_focus_std: float = 0.1        # ... log-normal with this log-std (the rest over a wide band; 0.5
                                              # on 80 development runs, seed 101: 87.5% against 86.3, 7 fixed,
                                              # 6 lost, heading +3.8 +- 3.1 deg: no gain)
+    init_depth_band: tuple[float, float] = (0.35, 1.3)  # the rest log-uniform over this band times the guess
     init_keep: float = 0.25                  # ... and re-weighs the best share of them primitive by primitive
     noise_px: float = 1.0                    # assumed pixel noise of flow positions
     outlier_prob: float = 0.05
@@ -187,6 +188,9 @@ def _check_bounds(cfg: TrackerConfig) -> None:
     if len(cfg.track_turns) > MAX_TRACK_TURNS:
         raise EngineError(f"engine setting track_turns lists {len(cfg.track_turns)} turns, at most "
                           f"{MAX_TRACK_TURNS}")
+    if len(cfg.init_depth_band) != 2 or not 0.1 <= cfg.init_depth_band[0] < cfg.init_depth_band[1] <= 10.0:
+        raise EngineError(f"engine setting init_depth_band must be [near, far] scales of the depth guess with "
+                          f"0.1 <= near < far <= 10, got {list(cfg.init_depth_band)}")
     if len(cfg.reinject_turns) > MAX_TRACK_TURNS or len(cfg.reinject_depths) > MAX_SPAWN_DEPTHS or not all(
             0.2 <= s <= 5.0 for s in cfg.reinject_depths):
         raise EngineError(f"engine settings reinject_turns and reinject_depths list at most {MAX_TRACK_TURNS} turns "

@@ -150,7 +150,7 @@ class ParticleTracks:
                    else level_world(frame.gravity))
         wide = initial_cloud(frame.intr, frame.flows, n_wide, rng, depth_range=cfg.init_distance,
                              world_from_camera=cameras, body_extent=model.body_extent,
-                             focus=(cfg.init_depth_focus, cfg.init_depth_focus_std))
+                             focus=(cfg.init_depth_focus, cfg.init_depth_focus_std), band=cfg.init_depth_band)
         prior = new_recognizer(model.db, cfg).posterior
         blob = self.scorer.image(frame, geometry.to_matrix(wide.quats), wide.positions,
                                  model.dists.mixture(prior.ravel()))
