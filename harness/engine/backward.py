@@ -24,9 +24,11 @@ from dataclasses import replace
 
 import numpy as np
 
+from harness.engine.confidence import calibrated
 from harness.engine.estimate import Estimate
 from harness.engine.particle_filter import ParticleCloud
 from harness.engine.pose_source import ParticleTracks
+from harness.engine.records import FrameRecord
 from harness.engine.track import Track, new_recognizer, twin
 
 
@@ -66,6 +68,18 @@ def settled_starts(final_tracks: list[Track], n_classes: int) -> list[tuple[int,
         else:
             starts.append((c, "end:leader", leader.cloud))
     return starts
+
+
+def both_passes(offline: Estimate, forward: FrameRecord, backward: FrameRecord, config) -> Estimate:
+    """The offline estimate with its class posterior decided by both passes' final tracks (``offline_both_passes``):
+    a primitive's evidence is the best path either pass found for it (each track's evidence is the whole
+    clip's, along its own path), mixed as ``FrameRecord.log_class_posterior`` mixes one pass's tracks."""
+    both = FrameRecord(forward.index, forward.tracks + backward.tracks, None, 0.0)
+    log_post = both.log_class_posterior()
+    T = len(offline.qpos)
+    post = calibrated(log_post[None], config.posterior_temperature, config.posterior_floor)
+    return replace(offline, class_posterior=np.repeat(post, T, axis=0),
+                   raw_log_posterior=np.repeat(log_post[None], T, axis=0))
 
 
 def in_forward_time(rev: Estimate) -> Estimate:

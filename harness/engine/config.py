@@ -74,6 +74,8 @@ class TrackerConfig:
     smoothing_frames: float = 2.0            # std (frames) of the offline estimate's trajectory smoother
     backward_pass: bool = False              # the offline estimate re-tracks the clip backwards from the causal
                                              # pass's final poses (engine.backward; else the causal leader smoothed)
+    offline_both_passes: bool = False        # ... and decides the class by both passes' final tracks (else the
+                                             # backward pass's alone)
     posterior_temperature: float = 10.5      # the class posterior's calibration (harness.engine.confidence) ...
     posterior_floor: float = 0.074           # ... fitted by benchmarks/posterior_calibration.py on 160
                                              # development runs (seeds 101-102; pooled ECE 0.127 -> 0.037, NLL

@@ -28,7 +28,7 @@ import numpy as np
 
 from harness import geometry
 from harness.body.model import BodyModel
-from harness.engine.backward import SettledStarts, in_forward_time, settled_starts
+from harness.engine.backward import SettledStarts, both_passes, in_forward_time, settled_starts
 from harness.engine.config import TrackerConfig
 from harness.engine.database import MotionDatabase
 from harness.engine.estimate import Estimate
@@ -191,4 +191,7 @@ class Tracker:
         for s, f in enumerate(flows):
             _, _, gravity, height = self._inputs[len(flows) - 1 - s]
             back.step(f, None, gravity, height)
-        return in_forward_time(back.result().offline)
+        offline = in_forward_time(back.result().offline)
+        if not self.config.offline_both_passes:
+            return offline
+        return both_passes(offline, self.records[-1], back.records[-1], self.config)
