@@ -273,8 +273,8 @@ class ParticleTracks:
     def reinject(self, frame: Frame, tracks: list[Track]) -> list[Track]:
         """Every ``reinject_every`` frames, alternatives to the paths of the best track of each of the
         ``reinject_classes`` primitives with the most evidence (``track.alternatives``: turns, the twin, depth
-        scales), each replayed over the last ``reinject_window`` frames; the best alternative of a parent
-        becomes a new track when its score beats the parent's evidence by ``reinject_margin``.
+        scales) over the last ``reinject_window`` frames; a parent's best alternative becomes a new track when its
+        score beats the parent's evidence by ``reinject_margin``.
 
         The newcomer's score is the evidence of the path it claims, its parent's path until the window and its
         own over the window, less ``log A`` for having been picked as the best of ``A`` alternatives (a
@@ -283,7 +283,10 @@ class ParticleTracks:
             L_new = L_parent(t0 - 1) + sum_{s=t0..t} log p(y_s | y_<s, alternative path) - log A
 
         the forward recursion continued from the parent's belief at ``t0 - 1`` (``replay``), so that it is
-        comparable with every other track's evidence."""
+        comparable with every other track's evidence. Replaying every alternative would cost ``A`` recursions per
+        parent; they are screened first (``screen``: each frame's flows under the parent's belief moment-matched,
+        one hypothesis per alternative and frame) and only the best, if it screens above the parent's own path,
+        is replayed."""
         cfg = self.scorer.config
         if not cfg.reinject_every or not self._alternatives or (frame.index + 1) % cfg.reinject_every:
             return tracks
@@ -291,14 +294,15 @@ class ParticleTracks:
         for t in sorted(tracks, key=lambda t: -t.log_evidence):
             best.setdefault(t.primitive, t)
         parents = list(best.values())[:cfg.reinject_classes]
-        jobs = [(parent, alt) for parent in parents for alt in self._alternatives]
+        own = Alternative("own")
+        screened = screen(self.scorer, self._frames, [p.history for p in parents], [own] + self._alternatives)
+        jobs = [(parent, self._alternatives[int(np.argmax(s[1:]))]) for parent, s in zip(parents, screened)
+                if s[1:].max() > s[0]]
         replayed = replay(self.scorer, self._frames, [p.history for p, _ in jobs], [a for _, a in jobs])
         penalty = np.log(len(self._alternatives))
         out = list(tracks)
-        for parent in parents:
-            scored = [(score - penalty, alt, rec, history) for (p, alt), (score, rec, history) in zip(jobs, replayed)
-                      if p is parent]
-            score, alt, rec, history = max(scored, key=lambda s: s[0])
+        for (parent, alt), (score, rec, history) in zip(jobs, replayed):
+            score -= penalty
             if score <= parent.log_evidence + cfg.reinject_margin:
                 continue
             pos, quat = alt.apply(parent.cloud.positions, parent.cloud.quats, frame.gravity)
@@ -322,6 +326,39 @@ class ParticleTracks:
                                family_nats=cfg.depth_prune_nats)
 
 
+def screen(scorer: Scorer, frames: dict[int, Frame], histories: list, alternatives: list[Alternative]) -> list:
+    """For each track history: ``(A,)`` the tempered log-likelihood summed over its later frames of each
+    alternative's transform of its poses, under the track's belief of that frame moment-matched over its
+    primitives' active states (one hypothesis per alternative and frame, all in one kernel call per frame)."""
+    cfg = scorer.config
+    rows, owners = [], []
+    for j, h in enumerate(histories):
+        for snap in list(h)[1:]:
+            rec = snap.recognizer
+            rows.append(np.where(rec.active(), rec.posterior, 0.0).ravel())
+            owners.append((j, snap))
+    out = [np.zeros(len(alternatives)) for _ in histories]
+    if not rows:
+        return out
+    blobs = scorer.model.dists.mixtures(np.array(rows))
+    by_frame: dict[int, list[int]] = {}
+    for i, (_, snap) in enumerate(owners):
+        by_frame.setdefault(snap.index, []).append(i)
+    A = len(alternatives)
+    for index, members in by_frame.items():
+        frame = frames[index]
+        if not frame.has_flows:
+            continue
+        poses = [alt.apply(owners[i][1].pose[0][None], owners[i][1].pose[1][None], frame.gravity)
+                 for i in members for alt in alternatives]
+        img = scorer.image(frame, geometry.to_matrix(np.concatenate([q for _, q in poses])),
+                           np.concatenate([p for p, _ in poses]), blobs, np.repeat(members, A))
+        ll = scorer.frame_log_likelihood(frame, img, cfg.n_eff_recognition).reshape(len(members), A)
+        for i, row in zip(members, ll):
+            out[owners[i][0]] += row
+    return out
+
+
 def replay(scorer: Scorer, frames: dict[int, Frame], histories: list, alternatives: list[Alternative]) -> list:
     """For each (track history, alternative): the forward recursion continued from the history's first
     snapshot's belief through its later frames, at the alternative's transform of the poses the track was
@@ -331,7 +368,7 @@ def replay(scorer: Scorer, frames: dict[int, Frame], histories: list, alternativ
     recs = [copy.copy(h[0].recognizer) for h in histories]
     evidence = np.array([h[0].log_evidence for h in histories])
     snaps: list[list[Snapshot]] = [[] for _ in histories]
-    steps = max(len(h) for h in histories) - 1
+    steps = max((len(h) for h in histories), default=1) - 1
     for i in range(1, steps + 1):
         live = [j for j, h in enumerate(histories) if i < len(h)]
         by_frame: dict[int, list[int]] = {}
