@@ -97,3 +97,27 @@ def test_the_same_seed_gives_the_same_newcomers(body, trained, clip):
     runs = [Tracker(trained, body, CONFIG, rng=np.random.default_rng(9)).run(clip) for _ in range(2)]
     np.testing.assert_array_equal(runs[0].qpos, runs[1].qpos)
     np.testing.assert_array_equal(runs[0].leader, runs[1].leader)
+
+
+def test_screening_sums_each_alternatives_frames_under_the_moment_matched_belief(body, trained, clip):
+    from harness.engine.pose_source import screen
+
+    tracker = Tracker(trained, body, CONFIG, rng=np.random.default_rng(2))
+    tracker.reset(clip.intrinsics, clip.fps)
+    for flows in clip.flows[:7]:
+        tracker.step(flows)
+    source, scorer = tracker.source, tracker.scorer
+    tracks = tracker.tracks[:2]
+    alts = alternatives(CONFIG)[:3]
+    got = screen(scorer, source._frames, [t.history for t in tracks], alts)
+    for track, row in zip(tracks, got):
+        expected = np.zeros(len(alts))
+        for snap in list(track.history)[1:]:
+            frame = source._frames[snap.index]
+            rec = snap.recognizer
+            blob = scorer.model.dists.mixture(np.where(rec.active(), rec.posterior, 0.0).ravel())
+            for k, alt in enumerate(alts):
+                p, q = alt.apply(snap.pose[0][None], snap.pose[1][None], None)
+                img = scorer.image(frame, geometry.to_matrix(q), p, blob)
+                expected[k] += scorer.frame_log_likelihood(frame, img, CONFIG.n_eff_recognition)[0]
+        np.testing.assert_allclose(row, expected, rtol=1e-9, atol=1e-9)
