@@ -13,6 +13,7 @@ class TrackerConfig:
     Where a value was chosen by measurement, the comment says on what."""
 
     particles: int = 500                     # in total over all tracks (200 before the tracks per primitive)
+    track_particles_max: int = 1_000_000     # ... and at most this many per track (the survivors share them)
     model_points: int = 150                  # the engine's own surface sample
     model_seed: int = 7                      # ... seeded independently of the markers
     init_distance: tuple[float, float] = (2.0, 8.0)    # prior range of the subject's distance
@@ -144,7 +145,7 @@ MAX_SPAWN_DEPTHS = 5
 _AT_LEAST_ZERO = ("reinject_every", "reinject_margin", "model_seed", "weight_iterations", "refine_iterations", "recover_tracks", "smoothing_frames",
                   "weight_smoothing", "position_noise", "rotation_noise", "tilt_noise", "guide_rotation_std",
                   "occlusion_radius", "occlusion_depth", "min_spawn_ess", "track_merge_deg", "track_merge_m")
-_ABOVE_ZERO = ("reinject_window", "reinject_classes", "open_cell_px", "posterior_temperature", "init_depth_focus_std", "floor_std", "floor_flight_height",
+_ABOVE_ZERO = ("track_particles_max", "reinject_window", "reinject_classes", "open_cell_px", "posterior_temperature", "init_depth_focus_std", "floor_std", "floor_flight_height",
                "refine_position_std", "refine_rotation_std", "track_prune_nats", "depth_prune_nats")
 _WITHIN = {"init_keep": (0.0, 1.0, "(0, 1]"), "init_depth_focus": (None, 1.0, "[0, 1]"),
            "weigh_class_mass": (0.0, 1.0, "(0, 1]"), "start_spread": (None, 1.0, "[0, 1]"),

@@ -222,7 +222,7 @@ class ParticleTracks:
         """Move every track's particles: the tracks recovery guides one by one (``Track.move``), the others in
         one bootstrap pass (``propose_many``), each at its belief's base velocity."""
         cfg = self.scorer.config
-        n_each = cfg.particles // len(tracks)
+        n_each = min(cfg.particles // len(tracks), cfg.track_particles_max)
         noise = self.process_noise(frame.gravity)
         dists = self.scorer.model.dists
         free = []
