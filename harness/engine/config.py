@@ -73,9 +73,9 @@ class TrackerConfig:
     occlusion_radius: float = 1.0            # footprint of a point's patch, in patch radii
     occlusion_depth: float = 0.08            # m: a point must be this much nearer to cover another
     smoothing_frames: float = 2.0            # std (frames) of the offline estimate's trajectory smoother
-    backward_pass: bool = False              # the offline estimate re-tracks the clip backwards from the causal
+    backward_pass: bool = True               # the offline estimate re-tracks the clip backwards from the causal
                                              # pass's final poses (engine.backward; else the causal leader smoothed)
-    offline_both_passes: bool = False        # ... and decides the class by both passes' final tracks (else the
+    offline_both_passes: bool = True         # ... and decides the class by both passes' final tracks (else the
                                              # backward pass's alone)
     posterior_temperature: float = 10.5      # the class posterior's calibration (harness.engine.confidence) ...
     posterior_floor: float = 0.074           # ... fitted by benchmarks/posterior_calibration.py on 160
@@ -89,7 +89,7 @@ class TrackerConfig:
     track_merge_m: float = 0.3               # ... and this in position merge (the one with less evidence goes)
     predictive_evidence: bool = False        # recognition (and so a track's evidence) at the pose predicted before
                                              # the frame's flows weighed the particles (else after: fitted to them)
-    reinject_every: int = 0                  # frames between re-injections of alternatives (0: none; track.py)
+    reinject_every: int = 5                  # frames between re-injections of alternatives (0: none; track.py)
     reinject_window: int = 10                # frames an alternative's path is replayed over
     reinject_classes: int = 3                # the best track of this many primitives (most evidence) gets them
     reinject_turns: tuple[float, ...] = (45.0, -45.0, 90.0, -90.0, 180.0)   # alternatives: turns (deg) ...
