@@ -87,8 +87,6 @@ class TrackerConfig:
                                              # 90% either way on 60 development runs)
     track_merge_deg: float = 30.0            # tracks closer than this in orientation ...
     track_merge_m: float = 0.3               # ... and this in position merge (the one with less evidence goes)
-    predictive_evidence: bool = False        # recognition (and so a track's evidence) at the pose predicted before
-                                             # the frame's flows weighed the particles (else after: fitted to them)
     reinject_every: int = 5                  # frames between re-injections of alternatives (0: none; track.py)
     reinject_window: int = 10                # frames an alternative's path is replayed over
     reinject_classes: int = 3                # the best track of this many primitives (most evidence) gets them

@@ -119,22 +119,14 @@ class Tracker:
         frame = self._frames.next(flows, camera_motion, gravity, camera_height)
         self._inputs.append((frame.flows, frame.camera_motion, frame.gravity, frame.camera_height))
         clock = _Clock(self._timing)
-        predicted = None
-        if not self.tracks:
-            if not frame.has_flows:         # nothing to start from yet: the frame takes the first estimate
-                self.records.append(FrameRecord(frame.index, (), self.source.known_pose(frame), 0.0))
-                return
-            self.tracks = self.source.start(frame)
-        else:
-            for track in self.tracks:
-                track.predict_belief()
-            self.source.predict(frame, self.tracks)
-            if self.config.predictive_evidence and not self.source.fixed:
-                predicted = [track.cloud.estimate() for track in self.tracks]
+        if not self.tracks and not frame.has_flows:     # nothing to start from yet: the first estimate's frame
+            self.records.append(FrameRecord(frame.index, (), self.source.known_pose(frame), 0.0))
+            return
+        self._propose(frame)
         clock.lap("propose")
         self.source.weigh(frame, self.tracks)
         clock.lap("weigh")
-        self._recognise(frame, predicted)
+        self._recognise(frame)
         clock.lap("recognise")
         self._recover(frame)
         clock.lap("recover")
@@ -145,11 +137,19 @@ class Tracker:
         self.records.append(FrameRecord(frame.index, tuple(t.record() for t in self.tracks),
                                         self.source.known_pose(frame), clock.elapsed_ms()))
 
-    def _recognise(self, frame: Frame, predicted: list | None = None) -> None:
+    def _propose(self, frame: Frame) -> None:
+        """The first frame with flows starts the tracks; later frames move their beliefs and poses."""
+        if not self.tracks:
+            self.tracks = self.source.start(frame)
+            return
+        for track in self.tracks:
+            track.predict_belief()
+        self.source.predict(frame, self.tracks)
+
+    def _recognise(self, frame: Frame) -> None:
         """Fold the frame into every track's belief at the track's pose (all tracks in one kernel call); each
-        recursion's normaliser is new evidence for its track. ``predicted``: the tracks' poses before this
-        frame's flows weighed them (``predictive_evidence``), to evaluate at instead."""
-        poses = predicted if predicted is not None else [t.pose for t in self.tracks]
+        recursion's normaliser is new evidence for its track."""
+        poses = [t.pose for t in self.tracks]
         evidence = self.scorer.recognise(frame, [t.recognizer for t in self.tracks],
                                          np.array([p for p, _ in poses]), np.array([q for _, q in poses]))
         for track, gained, pose in zip(self.tracks, evidence, poses):
