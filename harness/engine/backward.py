@@ -6,8 +6,8 @@ pruned before its pose settled. Offline, the whole clip is known. The backward p
 (``reverse``: flows and database in reversed time) and starts one set of tracks per primitive at the poses
 the causal pass ended with:
 
-- a primitive still tracked at the end starts from its own final clouds (each of its live tracks'), the
-  others from the causal leader's final cloud (the body's settled pose, whatever the primitive);
+- a primitive still tracked at the end starts from its own best final cloud (its live track with the most
+  evidence), the others from the causal leader's final cloud (the body's settled pose, whatever the primitive);
 - each start also spawns its twin (``track.twin``), since a settled pose may still be the twin's.
 
 Each backward track believes only its primitive (late commitment, as in the causal pass), is moved, weighed,
@@ -57,16 +57,14 @@ class SettledStarts(ParticleTracks):
 
 
 def settled_starts(final_tracks: list[Track], n_classes: int) -> list[tuple[int, str, ParticleCloud]]:
-    """One start per primitive and live final track of it (``(primitive, origin, cloud)``), the leader's cloud
-    for a primitive without a live track (module docstring)."""
-    leader = max(final_tracks, key=lambda t: t.log_evidence)
+    """One start per primitive (``(primitive, origin, cloud)``): the cloud of its live final track with the most
+    evidence, or the leader's cloud for a primitive without a live track (module docstring)."""
+    ranked = sorted(final_tracks, key=lambda t: -t.log_evidence)
     starts = []
     for c in range(n_classes):
-        own = [t for t in final_tracks if t.primitive == c]
-        if own:
-            starts += [(c, "end:" + t.origin.split("/")[-1], t.cloud) for t in own]
-        else:
-            starts.append((c, "end:leader", leader.cloud))
+        own = next((t for t in ranked if t.primitive == c), None)
+        starts.append((c, "end:" + own.origin.split("/")[-1], own.cloud) if own is not None
+                      else (c, "end:leader", ranked[0].cloud))
     return starts
 
 
