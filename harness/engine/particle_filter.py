@@ -129,7 +129,7 @@ class ParticleCloud:
         particles within ``mode_radius`` of the candidate centre (one of the ten heaviest particles) that
         gathers the most weight. A cloud may hold mirrored modes, and the mean of two modes is neither."""
         w = self.weights
-        centres = np.argsort(w)[-10:]
+        centres = np.argpartition(w, -10)[-10:] if len(w) > 10 else np.arange(len(w))
         # Unit quaternions a, b are within angle r of each other when |a . b| >= cos(r / 2).
         near = np.abs(self.quats[centres] @ self.quats.T) >= np.cos(0.5 * mode_radius)
         near = near[np.argmax(near @ w)]
