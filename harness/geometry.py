@@ -31,12 +31,13 @@ def conjugate(q: np.ndarray) -> np.ndarray:
 
 def to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` of unit quaternions."""
-    w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-    ], axis=-2)
+    q = np.asarray(q, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.empty(q.shape[:-1] + (3, 3))
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    return out
 
 
 def from_matrix(mat: np.ndarray) -> np.ndarray:
@@ -106,7 +107,7 @@ def weighted_mean(q: np.ndarray, weights: np.ndarray | None = None) -> np.ndarra
     """
     q = np.asarray(q, dtype=float)
     w = np.ones(len(q)) if weights is None else np.asarray(weights, dtype=float)
-    _, vec = np.linalg.eigh(np.einsum("n,ni,nj->ij", w, q, q))
+    _, vec = np.linalg.eigh((q * w[:, None]).T @ q)
     mean = vec[:, -1]
     return mean * (1.0 if mean[0] >= 0 else -1.0)
 

@@ -10,17 +10,17 @@ from hmmlearn.hmm import GaussianHMM
 
 from engine_fixtures import CLASSES, synthetic_demos
 from harness import geometry
-from harness.body import forward_points, sample_surface
+from harness.body import forward_points, forward_points_and_jacobians, sample_surface
 from harness.engine import MotionDatabase, Recognizer, motion_features, recognize_features
 from harness.engine.likelihood import FlowModel, flow_log_likelihoods, responsibilities, tempered
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
                                             motion_mean, pose_mixture_log_density, propose, propose_many,
                                             systematic_resample, upright_orientations)
-from harness.engine.recovery import Prior, refine_pose
+from harness.engine.recovery import Prior, Recovery, refine_pose
 from harness.engine.transform import ImageDistributions, patch_std
 from harness.engine.vector_math import atan_ratio, exp_into
 from harness.errors import EngineError
-from harness.pinhole import Intrinsics, project
+from harness.pinhole import Intrinsics, project, projection_jacobian
 
 
 @pytest.fixture(scope="module")
@@ -133,8 +133,9 @@ def _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing, h
 
 @pytest.mark.parametrize("iterations, smoothing, share_held", [(0, 0.0, 0.0), (2, 10.0, 0.0), (3, 0.5, 0.0),
                                                                 (2, 10.0, 0.5), (3, 0.5, 1.0)])
-def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations, smoothing, share_held):
-    H, P, M = 3, 7, 6
+@pytest.mark.parametrize("M", [6, 8, 11])     # the kernels pad the flows to a multiple of 8
+def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations, smoothing, share_held, M):
+    H, P = 3, 12
     img = _random_image_distributions(rng, H, P)
     held = rng.random((H, P)) < share_held
     flows = np.concatenate([img.pix[0, :M] + rng.normal(0, 3, (M, 2)), rng.normal(0, 30, (M, 2))], axis=1)
@@ -300,6 +301,105 @@ def test_refinement_recovers_a_perturbed_pose(body):
     assert np.abs(project(intr, Xr) - flows[:, :2]).max() < 0.05
     assert np.linalg.norm(pos_r - pos) < 0.01
     assert patch_std(body, 150) == pytest.approx(patch_std(body, 600) * 2, rel=1e-12)
+
+
+def _refine_in_numpy(body, points, intr, flows, resp, prior, *, noise_px, spread, iterations, start, fix_pose,
+                     damping=1e-3):
+    """``refine_pose`` as it was written in numpy before the compiled steps (the reference)."""
+    angles = np.clip(np.asarray(start.angles, dtype=float), body.lower, body.upper)
+    pos, rot = np.array(start.position, dtype=float), np.array(start.rotation, dtype=float)
+    mass = resp.sum(axis=0)
+    used = mass > 1e-3
+    target = (resp[:, used].T @ flows[:, :2]) / mass[used, None]
+    sub = points.subset(np.flatnonzero(used))
+    prior_prec = np.concatenate([1.0 / prior.angle_std**2, 1.0 / prior.position_std**2,
+                                 np.full(3, 1.0 / prior.rotation_std**2)])
+    for _ in range(iterations):
+        x, jac = forward_points_and_jacobians(body, body.qpos(angles, np.zeros(3), [1.0, 0, 0, 0]), sub.body,
+                                              sub.local, frame="base")
+        X = x @ rot.T + pos
+        if np.any(X[:, 2] < 0.05):
+            break
+        P = projection_jacobian(intr, X)
+        w = mass[used] / (noise_px**2 + (intr.fy * spread / X[:, 2]) ** 2)
+        skew = np.zeros((len(x), 3, 3))
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -x[:, 2], x[:, 1], -x[:, 0]
+        skew -= np.swapaxes(skew, 1, 2)
+        G = np.concatenate([P @ rot @ jac, P, -P @ rot @ skew], axis=2)
+        Gw = (G * np.sqrt(w)[:, None, None]).reshape(-1, 56)
+        A = Gw.T @ Gw
+        b = Gw.T @ ((target - project(intr, X)) * np.sqrt(w)[:, None]).ravel()
+        offset = np.concatenate([angles - prior.angles, pos - prior.position,
+                                 geometry.log(geometry.from_matrix(prior.rotation.T @ rot))])
+        A[np.diag_indices(56)] = (A[np.diag_indices(56)] + prior_prec) * (1.0 + damping)
+        b -= prior_prec * offset
+        free = slice(0, 50) if fix_pose else slice(0, 56)
+        step = np.zeros(56)
+        step[free] = np.linalg.solve(A[free, free], b[free])
+        angles = np.clip(angles + step[:50], body.lower, body.upper)
+        pos = pos + step[50:53]
+        rot = rot @ geometry.to_matrix(geometry.exp(step[53:]))
+    return angles, pos, rot
+
+
+@pytest.mark.parametrize("fix_pose, iterations, spread, depth", [(False, 3, 0.02, 4.0), (True, 2, 0.02, 4.0),
+                                                                 (False, 1, 0.0, 4.0), (False, 3, 0.02, 0.5)])
+def test_compiled_refinement_equals_the_numpy_steps(body, fix_pose, iterations, spread, depth):
+    """``refine_pose``'s compiled steps (normal equations summed per body over each chain's columns, the
+    rotation's offset and step without quaternion round trips) against the numpy steps, on soft assignments of
+    noisy flows, with the pose free or fixed; at 0.5 m the body reaches nearer the camera than ``MIN_DEPTH``
+    and the steps stop where the numpy ones stop."""
+    rng = np.random.default_rng(5)
+    intr = Intrinsics.from_fov(45.0, 640, 480)
+    points = sample_surface(body, 150, rng)
+    theta = body.random_angles(rng, scale=0.3)
+    rot = geometry.to_matrix(upright_orientations(np.array([2.0]), camera_pitch(0.2)))[0]
+    pos = np.array([0.2, -0.1, depth])
+    X = forward_points(body, body.qpos(theta, np.zeros(3), [1.0, 0, 0, 0]), points.body, points.local,
+                       frame="base") @ rot.T + pos
+    source = rng.choice(150, 60, replace=False)
+    flows = np.concatenate([project(intr, X[source]) + rng.normal(0, 2.0, (60, 2)), rng.normal(0, 50, (60, 2))], axis=1)
+    resp = np.zeros((60, 150))
+    for m, p in enumerate(source):          # most of each flow on its point, the rest on two others
+        resp[m, p] = rng.uniform(0.5, 0.9)
+        resp[m, rng.choice(150, 2)] += (0.95 - resp[m, p]) / 2
+    turn = geometry.to_matrix(geometry.exp(rng.normal(0, 0.05, 3)))
+    start = Recovery(np.clip(theta + rng.normal(0, 0.1, 50), body.lower, body.upper), pos + rng.normal(0, 0.05, 3),
+                     rot @ turn)
+    prior = Prior(theta + rng.normal(0, 0.1, 50), rng.uniform(0.05, 0.5, 50), pos, np.full(3, 0.25), rot, 0.3)
+    got = refine_pose(body, points, intr, flows, resp, prior, noise_px=1.0, spread=spread, iterations=iterations,
+                      start=start, fix_pose=fix_pose)
+    angles, position, rotation = _refine_in_numpy(body, points, intr, flows, resp, prior, noise_px=1.0, spread=spread,
+                                                  iterations=iterations, start=start, fix_pose=fix_pose)
+    assert not np.allclose(got.angles, start.angles) or depth < 1.0       # the steps moved, unless stopped
+    np.testing.assert_allclose(got.angles, angles, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(got.position, position, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(got.rotation, rotation, rtol=1e-9, atol=1e-12)
+
+
+def test_compiled_rotation_vector_and_matrix_match_geometry(rng):
+    """The compiled steps' rotation log (Shepperd's quaternion, each of its four branches; also ``Recovery.qpos``'s
+    quaternion) and exp against ``geometry``: random rotations, half turns about each axis and nearby, and steps
+    down to 1e-10 rad."""
+    from harness.engine.recovery import _rotation_matrix, _rotation_vector
+
+    vectors = [rng.normal(0, 1, 3) for _ in range(20)] + [rng.normal(0, 1e-10, 3), np.zeros(3)]
+    for axis in np.eye(3):
+        vectors += [np.pi * axis, (np.pi - 1e-6) * axis + rng.normal(0, 1e-3, 3)]
+    for v in vectors:
+        q = geometry.exp(v)
+        out, mat = np.empty(3), np.empty((3, 3))
+        _rotation_matrix(v, mat)
+        np.testing.assert_allclose(mat, geometry.to_matrix(q), rtol=0, atol=1e-14)
+        _rotation_vector(mat, out)
+        quat = Recovery(np.zeros(50), np.zeros(3), mat).qpos[3:7]
+        reference = geometry.from_matrix(mat)          # w >= 0 too; a half turn (w = 0) has two signs
+        np.testing.assert_allclose(quat * np.sign(quat @ reference), reference, rtol=0, atol=1e-14)
+        assert quat[0] >= 0
+        expected = geometry.log(geometry.from_matrix(mat))
+        if np.linalg.norm(expected) > np.pi - 1e-9:          # a half turn: v and -v are the same rotation
+            expected = expected * np.sign(expected @ out)
+        np.testing.assert_allclose(out, expected, rtol=0, atol=1e-12)
 
 
 def test_database_rejects_bad_input(database, body, tmp_path):

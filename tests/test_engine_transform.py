@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from harness import geometry
-from harness.body import forward_points, point_jacobians, point_velocities, sample_surface
+from harness.body import forward_points, forward_points_and_jacobians, point_jacobians, point_velocities, sample_surface
 from harness.engine.particle_filter import camera_pitch, upright_orientations
 from harness.engine.transform import JointGaussians, PointDistributions, state_point_distributions, to_image
 from harness.pinhole import Intrinsics, project
@@ -115,6 +115,66 @@ def test_moving_camera_changes_flow_by_ego_motion(monte_carlo):
     moving = to_image(intr, rot, trans, dist, camera_motion=np.array([1.0, 0, 0, 0, 0, 0]))
     X = dist.pos[0] @ rot[0].T + trans[0]
     np.testing.assert_allclose(moving.flow[0, :, 0] - still.flow[0, :, 0], -intr.fx / X[:, 2], rtol=1e-9)
+
+
+def _skew(v):
+    z = np.zeros(v.shape[:-1])
+    x, y, w = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
+
+
+def _carried_in_numpy(body, g, points, spread):
+    """The body-frame transform of the module docstring written out in numpy (the implementation before the
+    compiled one): FK and Jacobians of every state at once, Jdot by differences, the normals as differences of
+    positions, the covariances as matrix products."""
+    angles = np.atleast_2d(g.angles)
+    S = len(angles)
+    qpos = np.zeros((S, 57))
+    qpos[:, 3] = 1.0
+    qpos[:, 7:] = angles
+    pos, jac = forward_points_and_jacobians(body, qpos, points.body, points.local, frame="base")
+    rates = np.atleast_2d(g.rates)
+    step = 1e-4 / np.maximum(np.abs(rates).max(axis=1, keepdims=True), 1e-12)
+    hi, lo = qpos.copy(), qpos.copy()
+    hi[:, 7:] += step * rates
+    lo[:, 7:] -= step * rates
+    jdot = (forward_points_and_jacobians(body, hi, points.body, points.local, frame="base")[1]
+            - forward_points_and_jacobians(body, lo, points.body, points.local, frame="base")[1]) / (2 * step[:, :, None, None])
+    normal = forward_points(body, qpos, points.body, points.local + points.normal, frame="base") - pos
+    w, v = np.atleast_2d(g.base_angular), np.atleast_2d(g.base_linear)
+    vel = np.einsum("spij,sj->spi", jac, rates) + v[:, None] + np.cross(w[:, None], pos)
+    h = jdot + _skew(w)[:, None] @ jac
+    theta_var = np.atleast_2d(g.angle_var)[:, None, None, :]
+    pos_cov = (jac * theta_var) @ np.swapaxes(jac, -1, -2) + spread**2 * np.eye(3)
+    skew_x = _skew(pos)
+    vel_cov = ((h * theta_var) @ np.swapaxes(h, -1, -2)
+               + (jac * np.atleast_2d(g.rate_var)[:, None, None, :]) @ np.swapaxes(jac, -1, -2)
+               + np.atleast_2d(g.base_linear_var)[:, None, None, :] * np.eye(3)
+               + (skew_x * np.atleast_2d(g.base_angular_var)[:, None, None, :]) @ np.swapaxes(skew_x, -1, -2))
+    return PointDistributions(pos, pos_cov, vel, vel_cov, normal, v, w)
+
+
+@pytest.mark.parametrize("case", ["states", "one configuration"])
+def test_compiled_transform_equals_the_numpy_one(body, rng, case):
+    """``state_point_distributions`` (one compiled pass per state) against the same equations in numpy: several
+    states with angle variance (one of them without), and one configuration without angle variance (what
+    recovery asks for)."""
+    points = sample_surface(body, 40, rng)
+    if case == "states":
+        S = 5
+        angle_var = rng.uniform(0, 0.01, (S, 50))
+        angle_var[2] = 0.0
+        g = JointGaussians(body.random_angles(rng, S), angle_var, rng.normal(0, 1, (S, 50)), rng.uniform(0, 0.1, (S, 50)),
+                           rng.normal(0, 1, (S, 3)), rng.uniform(0, 0.01, (S, 3)), rng.normal(0, 1, (S, 3)),
+                           rng.uniform(0, 0.01, (S, 3)))
+    else:
+        g = JointGaussians.at(body.random_angles(rng), rng.normal(0, 1, 50), rng.uniform(0, 0.1, 50),
+                              rng.normal(0, 1, 3), rng.normal(0, 1, 3))
+    got, ref = state_point_distributions(body, g, points, 0.02), _carried_in_numpy(body, g, points, 0.02)
+    for field in PointDistributions.__dataclass_fields__:
+        a, b = getattr(got, field), getattr(ref, field)
+        assert a.shape == b.shape, field
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12 * np.abs(b).max(), err_msg=field)
 
 
 def test_batched_mixtures_equal_each_mixture_moment_matched_directly(rng):

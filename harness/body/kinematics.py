@@ -8,8 +8,9 @@ configurations ``(T, 57)`` (or one ``(57,)``) and a ``frame``:
 - ``"base"``: the base is held at the identity; results are in the base (pelvis) frame, which the
   design calls the body frame. The engine works in this frame.
 
-The point Jacobian is assembled from MuJoCo's body Jacobians (``mj_jacBody``) by the rigid-body transport
-``J_p = J_b - [p - x_b]_x J_r``; tests check it against ``mj_jac`` at the point and finite differences.
+Positions come from MuJoCo's ``mj_kinematics``; positions with Jacobians from the compiled walk of the kinematic
+tree (``harness.body.tree``: one pass per configuration, no call per body), which tests check against MuJoCo's
+sites, ``mj_jac`` at the point and finite differences.
 """
 
 from __future__ import annotations
@@ -17,8 +18,10 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from harness import geometry
 from harness.body.model import NQ, BodyModel
 from harness.body.surface import BOX, CAPSULE, CYLINDER, SPHERE
+from harness.body.tree import points_and_jacobians
 from harness.errors import BodyError
 
 FRAMES = ("world", "base")
@@ -39,14 +42,12 @@ def _check_frame(frame: str) -> None:
         raise BodyError(f"frame must be one of {FRAMES}, got {frame!r}")
 
 
-def _pose(body: BodyModel, q: np.ndarray, frame: str, with_com: bool) -> None:
+def _pose(body: BodyModel, q: np.ndarray, frame: str) -> None:
     d = body.data
     d.qpos[:] = q
     if frame == "base":
         d.qpos[:7] = _IDENTITY_BASE
     mujoco.mj_kinematics(body.model, d)
-    if with_com:
-        mujoco.mj_comPos(body.model, d)
 
 
 def _world_points(body: BodyModel, point_body: np.ndarray, point_local: np.ndarray) -> np.ndarray:
@@ -64,7 +65,7 @@ def forward_points(body: BodyModel, qpos: np.ndarray, point_body: np.ndarray, po
     point_local = np.asarray(point_local, dtype=float).reshape(-1, 3)
     out = np.empty((len(batch), len(point_body), 3))
     for t, q in enumerate(batch):
-        _pose(body, q, frame, with_com=False)
+        _pose(body, q, frame)
         out[t] = _world_points(body, point_body, point_local)
     return out[0] if single else out
 
@@ -74,28 +75,17 @@ def forward_points_and_jacobians(body: BodyModel, qpos: np.ndarray, point_body: 
                                  ) -> tuple[np.ndarray, np.ndarray]:
     """Positions ``(T, P, 3)`` and Jacobians ``(T, P, 3, 50)`` (metres per radian) w.r.t. the hinge angles.
 
-    A single configuration ``(57,)`` gives ``(P, 3)`` and ``(P, 3, 50)``.
+    A single configuration ``(57,)`` gives ``(P, 3)`` and ``(P, 3, 50)``. Computed by the compiled walk of the
+    body's kinematic tree (``harness.body.tree``), tested against MuJoCo's ``mj_kinematics`` and ``mj_jac``.
     """
     _check_frame(frame)
     batch, single = _as_batch(qpos)
-    m, d = body.model, body.data
-    point_body = np.asarray(point_body, dtype=int)
-    point_local = np.asarray(point_local, dtype=float).reshape(-1, 3)
-    bodies, inverse = np.unique(point_body, return_inverse=True)
-    jacp = np.empty((len(bodies), 3, m.nv))
-    jacr = np.empty((len(bodies), 3, m.nv))
-    dofs = body.angle_dof_index
-    pos = np.empty((len(batch), len(point_body), 3))
-    jac = np.empty((len(batch), len(point_body), 3, len(dofs)))
-    for t, q in enumerate(batch):
-        _pose(body, q, frame, with_com=True)
-        for i, b in enumerate(bodies):
-            mujoco.mj_jacBody(m, d, jacp[i], jacr[i], int(b))
-        pos[t] = _world_points(body, point_body, point_local)
-        lever = pos[t] - d.xpos[point_body]                       # p - x_b, (P, 3)
-        jp, jr = jacp[inverse][:, :, dofs], jacr[inverse][:, :, dofs]
-        # J_p = J_b + J_r x lever, column by column (omega x r = -r x omega).
-        jac[t] = jp + np.cross(jr, lever[:, :, None], axisa=1, axisb=1, axisc=1)
+    if frame == "base":
+        base_rot, base_pos = np.broadcast_to(np.eye(3), (len(batch), 3, 3)), np.zeros((len(batch), 3))
+    else:
+        base_rot, base_pos = geometry.to_matrix(geometry.normalize(batch[:, 3:7])), batch[:, :3]
+    pos, jac = points_and_jacobians(body.tree, batch[:, body.angle_qpos_index], base_rot, base_pos,
+                                    np.asarray(point_body, dtype=int), np.asarray(point_local, dtype=float).reshape(-1, 3))
     if single:
         return pos[0], jac[0]
     return pos, jac
@@ -130,7 +120,7 @@ def body_frames(body: BodyModel, qpos: np.ndarray, frame: str = "world") -> tupl
     """Origins ``(nbody, 3)`` (metres) and orientations ``(nbody, 3, 3)`` (frame from body) of every body,
     the world body included (index 0), for one configuration ``(57,)``."""
     _check_frame(frame)
-    _pose(body, np.asarray(qpos, dtype=float), frame, with_com=False)
+    _pose(body, np.asarray(qpos, dtype=float), frame)
     return body.data.xpos.copy(), body.data.xmat.reshape(-1, 3, 3).copy()
 
 
@@ -152,7 +142,7 @@ def geom_z_range(body: BodyModel, qpos: np.ndarray, geoms: np.ndarray | None = N
     gtype, size = m.geom_type[geoms], m.geom_size[geoms]
     out = np.empty((len(batch), len(geoms), 2))
     for t, q in enumerate(batch):
-        _pose(body, q, "world", with_com=False)
+        _pose(body, q, "world")
         rz = d.geom_xmat[geoms].reshape(-1, 3, 3)[:, 2, :]        # world z row of each geom's rotation
         ext = np.where(gtype == SPHERE, size[:, 0], 0.0)
         ext = np.where(gtype == CAPSULE, np.abs(rz[:, 2]) * size[:, 1] + size[:, 0], ext)

@@ -14,6 +14,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from harness.body.tree import KinematicTree
 from harness.errors import ModelError, UnknownNameError
 
 DEFAULT_MODEL_PATH = Path(__file__).resolve().parents[2] / "models" / "humanoid56.xml"
@@ -63,7 +64,8 @@ def load_mjmodel(path: str | Path | None = None) -> mujoco.MjModel:
 class BodyModel:
     """A compiled humanoid with one free joint at the root and 50 hinges, and its index maps.
 
-    Holds one scratch ``MjData`` for kinematics; not safe to share between threads. ``segment_scale``
+    Holds one scratch ``MjData`` for kinematics (not safe to share between threads) and the kinematic tree as
+    arrays (``tree``, for the compiled forward kinematics of ``harness.body.tree``). ``segment_scale``
     ``(nbody,)``: the length factor of each segment against the model file (ones for the nominal body; see
     ``harness.body.scaling`` and ``scaled``).
     """
@@ -74,6 +76,7 @@ class BodyModel:
         self.segment_scale = np.ones(model.nbody) if segment_scale is None else np.asarray(segment_scale, float)
         self.data = mujoco.MjData(model)
         self._check_structure()
+        self.tree = KinematicTree.of(model)
         hinge_ids = np.arange(1, model.njnt)
         self.joint_names: tuple[str, ...] = tuple(
             mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in hinge_ids

@@ -13,6 +13,7 @@ class TrackerConfig:
     Where a value was chosen by measurement, the comment says on what."""
 
     particles: int = 500                     # in total over all tracks (200 before the tracks per primitive)
+    track_particles_max: int = 1_000_000     # ... and at most this many per track (the survivors share them)
     model_points: int = 150                  # the engine's own surface sample
     model_seed: int = 7                      # ... seeded independently of the markers
     init_distance: tuple[float, float] = (2.0, 8.0)    # prior range of the subject's distance
@@ -24,6 +25,7 @@ class TrackerConfig:
     init_depth_focus_std: float = 0.1        # ... log-normal with this log-std (the rest over a wide band; 0.5
                                              # on 80 development runs, seed 101: 87.5% against 86.3, 7 fixed,
                                              # 6 lost, heading +3.8 +- 3.1 deg: no gain)
+    init_depth_band: tuple[float, float] = (0.35, 1.3)  # the rest log-uniform over this band times the guess
     init_keep: float = 0.25                  # ... and re-weighs the best share of them primitive by primitive
     noise_px: float = 1.0                    # assumed pixel noise of flow positions
     outlier_prob: float = 0.05
@@ -71,6 +73,10 @@ class TrackerConfig:
     occlusion_radius: float = 1.0            # footprint of a point's patch, in patch radii
     occlusion_depth: float = 0.08            # m: a point must be this much nearer to cover another
     smoothing_frames: float = 2.0            # std (frames) of the offline estimate's trajectory smoother
+    backward_pass: bool = True               # the offline estimate re-tracks the clip backwards from the causal
+                                             # pass's final poses (engine.backward; else the causal leader smoothed)
+    offline_both_passes: bool = True         # ... and decides the class by both passes' final tracks (else the
+                                             # backward pass's alone)
     posterior_temperature: float = 10.5      # the class posterior's calibration (harness.engine.confidence) ...
     posterior_floor: float = 0.074           # ... fitted by benchmarks/posterior_calibration.py on 160
                                              # development runs (seeds 101-102; pooled ECE 0.127 -> 0.037, NLL
@@ -81,6 +87,13 @@ class TrackerConfig:
                                              # 90% either way on 60 development runs)
     track_merge_deg: float = 30.0            # tracks closer than this in orientation ...
     track_merge_m: float = 0.3               # ... and this in position merge (the one with less evidence goes)
+    reinject_every: int = 5                  # frames between re-injections of alternatives (0: none; track.py)
+    reinject_window: int = 10                # frames an alternative's path is replayed over
+    reinject_classes: int = 3                # the best track of this many primitives (most evidence) gets them
+    reinject_turns: tuple[float, ...] = (45.0, -45.0, 90.0, -90.0, 180.0)   # alternatives: turns (deg) ...
+    reinject_twin: bool = True               # ... the twin ...
+    reinject_depths: tuple[float, ...] = (0.85, 1.18)   # ... and depth scales of the track's path
+    reinject_margin: float = 0.0             # nats a newcomer's score must beat its parent's by
 
     def __post_init__(self):
         positive = {"particles": self.particles, "model_points": self.model_points, "init_factor": self.init_factor,
@@ -127,15 +140,15 @@ MAX_TRACK_TURNS = 16
 MAX_SPAWN_DEPTHS = 5
 # Settings that must be >= 0, > 0, or within [lo, hi] (None: open), beyond the checks above; each ran before
 # with a meaningless result or failed deep inside a run (issue 23).
-_AT_LEAST_ZERO = ("model_seed", "weight_iterations", "refine_iterations", "recover_tracks", "smoothing_frames",
+_AT_LEAST_ZERO = ("reinject_every", "reinject_margin", "model_seed", "weight_iterations", "refine_iterations", "recover_tracks", "smoothing_frames",
                   "weight_smoothing", "position_noise", "rotation_noise", "tilt_noise", "guide_rotation_std",
                   "occlusion_radius", "occlusion_depth", "min_spawn_ess", "track_merge_deg", "track_merge_m")
-_ABOVE_ZERO = ("open_cell_px", "posterior_temperature", "init_depth_focus_std", "floor_std", "floor_flight_height",
+_ABOVE_ZERO = ("track_particles_max", "reinject_window", "reinject_classes", "open_cell_px", "posterior_temperature", "init_depth_focus_std", "floor_std", "floor_flight_height",
                "refine_position_std", "refine_rotation_std", "track_prune_nats", "depth_prune_nats")
 _WITHIN = {"init_keep": (0.0, 1.0, "(0, 1]"), "init_depth_focus": (None, 1.0, "[0, 1]"),
            "weigh_class_mass": (0.0, 1.0, "(0, 1]"), "start_spread": (None, 1.0, "[0, 1]"),
            "posterior_floor": (None, 1.0, "[0, 1)"), "floor_flight": (None, 1.0, "[0, 1)")}
-_COUNTS = ("weight_iterations", "refine_iterations", "recover_tracks", "em_iterations", "weigh_classes",
+_COUNTS = ("reinject_every", "reinject_window", "reinject_classes", "weight_iterations", "refine_iterations", "recover_tracks", "em_iterations", "weigh_classes",
            "init_factor")
 
 
@@ -176,6 +189,14 @@ def _check_bounds(cfg: TrackerConfig) -> None:
     if len(cfg.track_turns) > MAX_TRACK_TURNS:
         raise EngineError(f"engine setting track_turns lists {len(cfg.track_turns)} turns, at most "
                           f"{MAX_TRACK_TURNS}")
+    if len(cfg.init_depth_band) != 2 or not 0.1 <= cfg.init_depth_band[0] < cfg.init_depth_band[1] <= 10.0:
+        raise EngineError(f"engine setting init_depth_band must be [near, far] scales of the depth guess with "
+                          f"0.1 <= near < far <= 10, got {list(cfg.init_depth_band)}")
+    if len(cfg.reinject_turns) > MAX_TRACK_TURNS or len(cfg.reinject_depths) > MAX_SPAWN_DEPTHS or not all(
+            0.2 <= s <= 5.0 for s in cfg.reinject_depths):
+        raise EngineError(f"engine settings reinject_turns and reinject_depths list at most {MAX_TRACK_TURNS} turns "
+                          f"and {MAX_SPAWN_DEPTHS} depth scales within [0.2, 5], got {list(cfg.reinject_turns)} and "
+                          f"{list(cfg.reinject_depths)}")
     if not cfg.spawn_depths or len(cfg.spawn_depths) > MAX_SPAWN_DEPTHS or not all(
             0.2 <= s <= 5.0 for s in cfg.spawn_depths):
         raise EngineError(f"engine setting spawn_depths must list 1 to {MAX_SPAWN_DEPTHS} depth scales within "

@@ -129,7 +129,7 @@ class ParticleCloud:
         particles within ``mode_radius`` of the candidate centre (one of the ten heaviest particles) that
         gathers the most weight. A cloud may hold mirrored modes, and the mean of two modes is neither."""
         w = self.weights
-        centres = np.argsort(w)[-10:]
+        centres = np.argpartition(w, -10)[-10:] if len(w) > 10 else np.arange(len(w))
         # Unit quaternions a, b are within angle r of each other when |a . b| >= cos(r / 2).
         near = np.abs(self.quats[centres] @ self.quats.T) >= np.cos(0.5 * mode_radius)
         near = near[np.argmax(near @ w)]
@@ -150,12 +150,12 @@ def depth_guess(intr: Intrinsics, flows: np.ndarray, body_extent: float) -> floa
 
 def initial_cloud(intr: Intrinsics, flows: np.ndarray, n: int, rng: np.random.Generator, *,
                   depth_range: tuple[float, float], world_from_camera: np.ndarray, body_extent: float,
-                  focus: tuple[float, float] = (0.0, 0.1)) -> ParticleCloud:
+                  focus: tuple[float, float] = (0.0, 0.1), band: tuple[float, float] = (0.35, 1.3)) -> ParticleCloud:
     """A coarse prior: the subject where the flows are, any heading, upright under the cameras
     ``world_from_camera`` (``(n, 3, 3)`` drawn by the caller from its elevation prior, or the known tilt), at a
     depth within ``depth_range`` drawn from a mixture around what the flows' vertical extent suggests
     (``depth_guess``): a share ``focus[0]`` log-normal about the guess with log-std ``focus[1]`` (the guess is
-    unbiased for a body seen whole), the rest log-uniform over ``[0.35, 1.3]`` times it (a body partly hidden,
+    unbiased for a body seen whole), the rest log-uniform over ``band`` times it (a body partly hidden,
     a wall hiding the legs, or crouched, looks farther; raised arms, nearer)."""
     lo, hi = depth_range
     if not 0 < lo < hi:
@@ -167,7 +167,7 @@ def initial_cloud(intr: Intrinsics, flows: np.ndarray, n: int, rng: np.random.Ge
         v_lo, v_hi = np.percentile(pts[:, 1], [5, 95])
         extent = max(v_hi - v_lo, 1.0)
         guess = depth_guess(intr, flows, body_extent)
-        near, far = max(lo, 0.35 * guess), min(hi, 1.3 * guess)
+        near, far = max(lo, band[0] * guess), min(hi, band[1] * guess)
         if near >= far:
             near, far = lo, hi
         u = rng.uniform(u_lo, u_hi, n) if u_hi > u_lo else np.full(n, u_lo)

@@ -15,17 +15,22 @@ heaviest orientation mode, its turns and its twin) and ``GivenPose`` (the baseli
 
 from __future__ import annotations
 
+import copy
+from collections import deque
 from typing import Protocol
 
 import numpy as np
 
 from harness import geometry
+from harness.body.model import mirror_angles
 from harness.engine.frame import Frame
 from harness.engine.logsum import logsumexp
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
                                             initial_cloud, level_world, propose_many, systematic_resample)
+from harness.engine.recovery import Recovery
 from harness.engine.scoring import Scorer
-from harness.engine.track import Track, new_recognizer, prune_and_merge, turned, twin
+from harness.engine.track import (Alternative, Snapshot, Track, alternatives, new_recognizer, prune_and_merge, turned,
+                                  twin)
 from harness.errors import EngineError
 
 
@@ -39,6 +44,8 @@ class PoseSource(Protocol):
     def predict(self, frame: Frame, tracks: list[Track]) -> None: ...
 
     def weigh(self, frame: Frame, tracks: list[Track]) -> None: ...
+
+    def reinject(self, frame: Frame, tracks: list[Track]) -> list[Track]: ...
 
     def manage(self, tracks: list[Track]) -> list[Track]: ...
 
@@ -76,6 +83,9 @@ class GivenPose:
         for track in tracks:
             track.place(*self.known_pose(frame))
 
+    def reinject(self, frame: Frame, tracks: list[Track]) -> list[Track]:
+        return tracks
+
     def manage(self, tracks: list[Track]) -> list[Track]:
         return tracks
 
@@ -91,6 +101,14 @@ class ParticleTracks:
         self.scorer = scorer
         self.rng = rng
         self._spawned = 0
+        self._frames: dict[int, Frame] = {}      # the frames re-injection replays
+        self._alternatives = alternatives(scorer.config)
+
+    @property
+    def memory(self) -> int:
+        """Snapshots each track keeps: the window re-injection replays, and the one before it."""
+        cfg = self.scorer.config
+        return cfg.reinject_window + 1 if cfg.reinject_every else 1
 
     def known_pose(self, frame: Frame) -> None:
         return None
@@ -132,7 +150,7 @@ class ParticleTracks:
                    else level_world(frame.gravity))
         wide = initial_cloud(frame.intr, frame.flows, n_wide, rng, depth_range=cfg.init_distance,
                              world_from_camera=cameras, body_extent=model.body_extent,
-                             focus=(cfg.init_depth_focus, cfg.init_depth_focus_std))
+                             focus=(cfg.init_depth_focus, cfg.init_depth_focus_std), band=cfg.init_depth_band)
         prior = new_recognizer(model.db, cfg).posterior
         blob = self.scorer.image(frame, geometry.to_matrix(wide.quats), wide.positions,
                                  model.dists.mixture(prior.ravel()))
@@ -188,7 +206,7 @@ class ParticleTracks:
                 sibling = ParticleCloud(cloud.positions * scale, cloud.quats.copy(), cloud.log_weights.copy())
                 name = prefix + origin + ("" if scale == 1.0 else f"@{scale:g}")
                 tracks.append(Track(self._spawned, name, belief, sibling, primitive=primitive,
-                                    family=family if len(cfg.spawn_depths) > 1 else None))
+                                    family=family if len(cfg.spawn_depths) > 1 else None, memory=self.memory))
                 self._spawned += 1
         return tracks
 
@@ -204,7 +222,7 @@ class ParticleTracks:
         """Move every track's particles: the tracks recovery guides one by one (``Track.move``), the others in
         one bootstrap pass (``propose_many``), each at its belief's base velocity."""
         cfg = self.scorer.config
-        n_each = cfg.particles // len(tracks)
+        n_each = min(cfg.particles // len(tracks), cfg.track_particles_max)
         noise = self.process_noise(frame.gravity)
         dists = self.scorer.model.dists
         free = []
@@ -243,16 +261,131 @@ class ParticleTracks:
         return out
 
     def weigh(self, frame: Frame, tracks: list[Track]) -> None:
+        if self.scorer.config.reinject_every:
+            self._frames[frame.index] = frame
+            self._frames.pop(frame.index - self.memory, None)
         if frame.has_flows:
             for track, ll in zip(tracks, self.log_likelihoods(frame, tracks)):
                 track.reweight(ll)
         for track in tracks:
             track.settle(self.scorer.config.refine_position_std)
 
+    def reinject(self, frame: Frame, tracks: list[Track]) -> list[Track]:
+        """Every ``reinject_every`` frames, alternatives to the paths of the best track of each of the
+        ``reinject_classes`` primitives with the most evidence (``track.alternatives``: turns, the twin, depth
+        scales) over the last ``reinject_window`` frames; a parent's best alternative becomes a new track when its
+        score beats the parent's evidence by ``reinject_margin``.
+
+        The newcomer's score is the evidence of the path it claims, its parent's path until the window and its
+        own over the window, less ``log A`` for having been picked as the best of ``A`` alternatives (a
+        uniform prior over them):
+
+            L_new = L_parent(t0 - 1) + sum_{s=t0..t} log p(y_s | y_<s, alternative path) - log A
+
+        the forward recursion continued from the parent's belief at ``t0 - 1`` (``replay``), so that it is
+        comparable with every other track's evidence. Replaying every alternative would cost ``A`` recursions per
+        parent; they are screened first (``screen``: each frame's flows under the parent's belief moment-matched,
+        one hypothesis per alternative and frame) and only the best, if it screens above the parent's own path,
+        is replayed."""
+        cfg = self.scorer.config
+        if not cfg.reinject_every or not self._alternatives or (frame.index + 1) % cfg.reinject_every:
+            return tracks
+        best: dict = {}
+        for t in sorted(tracks, key=lambda t: -t.log_evidence):
+            best.setdefault(t.primitive, t)
+        parents = list(best.values())[:cfg.reinject_classes]
+        own = Alternative("own")
+        screened = screen(self.scorer, self._frames, [p.history for p in parents], [own] + self._alternatives)
+        jobs = [(parent, self._alternatives[int(np.argmax(s[1:]))]) for parent, s in zip(parents, screened)
+                if s[1:].max() > s[0]]
+        replayed = replay(self.scorer, self._frames, [p.history for p, _ in jobs], [a for _, a in jobs])
+        penalty = np.log(len(self._alternatives))
+        out = list(tracks)
+        for (parent, alt), (score, rec, history) in zip(jobs, replayed):
+            score -= penalty
+            if score <= parent.log_evidence + cfg.reinject_margin:
+                continue
+            pos, quat = alt.apply(parent.cloud.positions, parent.cloud.quats, frame.gravity)
+            cloud = ParticleCloud(pos, quat, parent.cloud.log_weights.copy())
+            newcomer = Track(self._spawned, f"{parent.origin}>{alt.name}@{frame.index}", rec, cloud,
+                             primitive=parent.primitive, memory=self.memory, log_evidence=score,
+                             parent=parent.id)
+            # Its path until the window is its parent's: a later replay of it may start there.
+            newcomer.history = deque([parent.history[0], *history], maxlen=self.memory)
+            newcomer.pose, newcomer.pose_std = history[-1].pose, parent.pose_std.copy()
+            angles = parent.recovery.angles
+            newcomer.recovered(Recovery(mirror_angles(angles) if alt.twin else angles, newcomer.pose[0],
+                                        geometry.to_matrix(newcomer.pose[1]), refined=False))
+            self._spawned += 1
+            out.append(newcomer)
+        return out
+
     def manage(self, tracks: list[Track]) -> list[Track]:
         cfg = self.scorer.config
         return prune_and_merge(tracks, cfg.track_prune_nats, cfg.track_merge_m, cfg.track_merge_deg,
                                family_nats=cfg.depth_prune_nats)
+
+
+def screen(scorer: Scorer, frames: dict[int, Frame], histories: list, alternatives: list[Alternative]) -> list:
+    """For each track history: ``(A,)`` the tempered log-likelihood summed over its later frames of each
+    alternative's transform of its poses, under the track's belief of that frame moment-matched over its
+    primitives' active states (one hypothesis per alternative and frame, all in one kernel call per frame)."""
+    cfg = scorer.config
+    rows, owners = [], []
+    for j, h in enumerate(histories):
+        for snap in list(h)[1:]:
+            rec = snap.recognizer
+            rows.append(np.where(rec.active(), rec.posterior, 0.0).ravel())
+            owners.append((j, snap))
+    out = [np.zeros(len(alternatives)) for _ in histories]
+    if not rows:
+        return out
+    blobs = scorer.model.dists.mixtures(np.array(rows))
+    by_frame: dict[int, list[int]] = {}
+    for i, (_, snap) in enumerate(owners):
+        by_frame.setdefault(snap.index, []).append(i)
+    A = len(alternatives)
+    for index, members in by_frame.items():
+        frame = frames[index]
+        if not frame.has_flows:
+            continue
+        poses = [alt.apply(owners[i][1].pose[0][None], owners[i][1].pose[1][None], frame.gravity)
+                 for i in members for alt in alternatives]
+        img = scorer.image(frame, geometry.to_matrix(np.concatenate([q for _, q in poses])),
+                           np.concatenate([p for p, _ in poses]), blobs, np.repeat(members, A))
+        ll = scorer.frame_log_likelihood(frame, img, cfg.n_eff_recognition).reshape(len(members), A)
+        for i, row in zip(members, ll):
+            out[owners[i][0]] += row
+    return out
+
+
+def replay(scorer: Scorer, frames: dict[int, Frame], histories: list, alternatives: list[Alternative]) -> list:
+    """For each (track history, alternative): the forward recursion continued from the history's first
+    snapshot's belief through its later frames, at the alternative's transform of the poses the track was
+    evaluated at (all replays' frames scored in one kernel call per frame). Returns per pair ``(evidence,
+    recognizer, snapshots)``: the first snapshot's evidence plus the replayed normalisers, the belief at the
+    end, and the replayed snapshots (``track.Snapshot``, the alternative's poses)."""
+    recs = [copy.copy(h[0].recognizer) for h in histories]
+    evidence = np.array([h[0].log_evidence for h in histories])
+    snaps: list[list[Snapshot]] = [[] for _ in histories]
+    steps = max((len(h) for h in histories), default=1) - 1
+    for i in range(1, steps + 1):
+        live = [j for j, h in enumerate(histories) if i < len(h)]
+        by_frame: dict[int, list[int]] = {}
+        for j in live:
+            by_frame.setdefault(histories[j][i].index, []).append(j)
+        for index, members in by_frame.items():
+            frame = frames[index]
+            poses = [alternatives[j].apply(histories[j][i].pose[0][None], histories[j][i].pose[1][None],
+                                           frame.gravity) for j in members]
+            for j in members:
+                recs[j].predict()
+            gained = scorer.recognise(frame, [recs[j] for j in members], np.concatenate([p for p, _ in poses]),
+                                      np.concatenate([q for _, q in poses]))
+            for j, g, (p, q) in zip(members, gained, poses):
+                evidence[j] += g
+                snaps[j].append(Snapshot(index, (p[0], q[0]), copy.copy(recs[j]), float(evidence[j])))
+    return [(float(e), r, s) for e, r, s in zip(evidence, recs, snaps)]
 
 
 def mixture_pairs(particles: list[int], terms: list[int]) -> tuple[np.ndarray, np.ndarray]:

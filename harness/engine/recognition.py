@@ -35,6 +35,7 @@ class Recognizer:
         with np.errstate(divide="ignore"):
             self._log_start = np.log(start) - np.log(C)
             self._log_trans = np.log(db.transmat_)
+        self._trans = np.asarray(db.transmat_, dtype=float)
         self._log_start_shape = self._log_start.copy()
         self._log_prune = np.log(prune) if prune > 0 else -np.inf
         self.reset()
@@ -42,6 +43,18 @@ class Recognizer:
     def reset(self) -> None:
         self.log_alpha = self._log_start.copy()   # the prior of frame 0
         self._started = False
+
+    @property
+    def log_alpha(self) -> np.ndarray:
+        """``(C, K)`` log joint posterior (normalised after ``update``). Arrays are replaced, never changed in
+        place, so a shallow copy of the recognizer is a snapshot; the quantities derived from it are cached until
+        it changes."""
+        return self._log_alpha
+
+    @log_alpha.setter
+    def log_alpha(self, value: np.ndarray) -> None:
+        self._log_alpha = value
+        self._derived: dict = {}
 
     def restrict(self, primitives: np.ndarray) -> "Recognizer":
         """Start anew believing only ``primitives`` (indices or a ``(C,)`` mask), each with its start
@@ -60,10 +73,14 @@ class Recognizer:
         """Move the posterior of the last frame through the transitions (the prior of the next frame)."""
         if not self._started:
             return
-        # A primitive outside the belief (-inf throughout) stays so: only the others move.
-        live = np.isfinite(self.log_alpha.max(axis=1))
+        # A primitive outside the belief (-inf throughout) stays so: only the others move. In probability space
+        # about each primitive's best state: a matrix product per primitive.
+        top = self.log_alpha.max(axis=1)
+        live = np.flatnonzero(np.isfinite(top))
         moved = np.full_like(self.log_alpha, -np.inf)
-        moved[live] = logsumexp(self.log_alpha[live][:, :, None] + self._log_trans[live], axis=1)
+        p = np.exp(self.log_alpha[live] - top[live, None])
+        with np.errstate(divide="ignore"):
+            moved[live] = np.log(np.einsum("ck,ckj->cj", p, self._trans[live])) + top[live, None]
         self.log_alpha = moved
 
     def active(self) -> np.ndarray:
@@ -73,8 +90,8 @@ class Recognizer:
         still follow its own states, or it could never come back when its distinctive phase (the flight of a
         jump) arrives."""
         # A primitive outside the belief (-inf throughout, see ``restrict``) has no state worth evaluating.
-        return (self.log_alpha >= self.log_alpha.max(axis=1, keepdims=True) + self._log_prune) & np.isfinite(
-            self.log_alpha)
+        return self._cached("active", lambda: (self.log_alpha >= self.log_alpha.max(axis=1, keepdims=True)
+                                               + self._log_prune) & np.isfinite(self.log_alpha))
 
     def update(self, log_b: np.ndarray | None) -> float:
         """Fold in one frame's emission log-likelihoods ``(C, K)``; entries of inactive states are ignored.
@@ -96,27 +113,38 @@ class Recognizer:
         self._started = True
         return norm
 
+    def _cached(self, name: str, compute):
+        if name not in self._derived:
+            self._derived[name] = compute()
+        return self._derived[name]
+
     @property
     def posterior(self) -> np.ndarray:
-        """``(C, K)`` joint posterior over primitives and states (``log_alpha`` is kept normalised)."""
-        p = np.exp(self.log_alpha - self.log_alpha.max())
-        return p / p.sum()
+        """``(C, K)`` joint posterior over primitives and states (``log_alpha`` is kept normalised; read-only)."""
+        def compute():
+            p = np.exp(self.log_alpha - self.log_alpha.max())
+            return p / p.sum()
+        return self._cached("posterior", compute)
 
     @property
     def state_posterior(self) -> np.ndarray:
         """``(C, K)`` posterior over states given each primitive (rows sum to one, even for a primitive whose
-        own probability underflows)."""
-        top = self.log_alpha.max(axis=1, keepdims=True)
-        # A primitive outside the belief keeps its start distribution's shape (it is never read).
-        la = np.where(np.isfinite(top), self.log_alpha, self._log_start_shape)
-        p = np.exp(la - la.max(axis=1, keepdims=True))
-        return p / p.sum(axis=1, keepdims=True)
+        own probability underflows; read-only)."""
+        def compute():
+            top = self.log_alpha.max(axis=1, keepdims=True)
+            # A primitive outside the belief keeps its start distribution's shape (it is never read).
+            la = np.where(np.isfinite(top), self.log_alpha, self._log_start_shape)
+            p = np.exp(la - la.max(axis=1, keepdims=True))
+            return p / p.sum(axis=1, keepdims=True)
+        return self._cached("state_posterior", compute)
 
     @property
     def class_posterior(self) -> np.ndarray:
-        """``(C,)`` posterior over primitives."""
-        p = self.posterior.sum(axis=1)
-        return p / p.sum()
+        """``(C,)`` posterior over primitives (read-only)."""
+        def compute():
+            p = self.posterior.sum(axis=1)
+            return p / p.sum()
+        return self._cached("class_posterior", compute)
 
 
 def recognize_features(db: MotionDatabase, features: np.ndarray, start_spread: float = 0.05,

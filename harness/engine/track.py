@@ -14,6 +14,10 @@ pruning). Tracks are compared by evidence; the decision between them is made as 
 
 from __future__ import annotations
 
+import copy
+from collections import deque
+from dataclasses import dataclass
+
 import numpy as np
 
 from harness import geometry
@@ -55,11 +59,51 @@ def twin(quats: np.ndarray, gravity: np.ndarray | None = None) -> np.ndarray:
     return geometry.from_matrix(world.T @ np.diag([-1.0, 1.0, 1.0]) @ world @ rot @ _BODY_MIRROR)
 
 
+@dataclass(frozen=True)
+class Alternative:
+    """A transform of a track's poses, re-injection's alternative to its path: a turn (rad) about the body's
+    vertical, then optionally the twin, then a depth scale (positions scaled about the camera centre, which
+    keeps the body where the flows are in the image)."""
+
+    name: str
+    turn: float = 0.0
+    twin: bool = False
+    depth: float = 1.0
+
+    def apply(self, positions: np.ndarray, quats: np.ndarray, gravity: np.ndarray | None
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """Poses ``(N, 3)``, ``(N, 4)`` transformed."""
+        q = turned(quats, self.turn) if self.turn else quats
+        q = twin(q, gravity) if self.twin else q
+        return positions * self.depth, q
+
+
+def alternatives(config: TrackerConfig) -> list[Alternative]:
+    """Re-injection's alternatives to a track's path, from the settings (``reinject_*``)."""
+    out = [Alternative(f"turn{a:+g}", turn=np.deg2rad(a)) for a in config.reinject_turns]
+    if config.reinject_twin:
+        out.append(Alternative("twin", twin=True))
+    out += [Alternative(f"depth{d:g}", depth=d) for d in config.reinject_depths]
+    return out
+
+
 def new_recognizer(db: MotionDatabase, config: TrackerConfig) -> Recognizer:
     """A track's belief over (primitive, state): the isolated recursion, or the switching one for streams."""
     if config.primitive_switch > 0:
         return SwitchingRecognizer(db, config.primitive_switch, config.start_spread, config.prune)
     return Recognizer(db, config.start_spread, config.prune)
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """A track at the end of one frame, as re-injection replays it: the frame's index (None: before the
+    track's first frame), the pose recognition was evaluated at (None before the first frame), the belief
+    after the frame (a copy of the recognizer) and the evidence so far."""
+
+    index: int | None
+    pose: tuple[np.ndarray, np.ndarray] | None
+    recognizer: Recognizer
+    log_evidence: float
 
 
 class Track:
@@ -72,21 +116,27 @@ class Track:
     cloud: its particles (None when the pose is given);
     log_evidence: tempered nats since the first frame with flows; pose: this frame's filter estimate
     ``(position (3,), quaternion (4,))`` and pose_std ``(3,)`` the position std recovery may use around it;
-    recovery: what recovery found this frame (the next proposal is guided by it when it was refined).
+    recovery: what recovery found this frame (the next proposal is guided by it when it was refined);
+    history: the last ``memory`` snapshots (``Snapshot``), the first one from before the track's first frame
+    until the window passes it; parent: the id of the track it was re-injected from (None: spawned).
     """
 
     def __init__(self, track_id: int, origin: str, recognizer: Recognizer, cloud: ParticleCloud | None = None, *,
-                 primitive: int | None = None, family: int | None = None):
+                 primitive: int | None = None, family: int | None = None, memory: int = 1,
+                 log_evidence: float = 0.0, parent: int | None = None):
         self.id = int(track_id)
         self.origin = origin
         self.primitive = primitive
         self.family = family
+        self.parent = parent
         self.recognizer = recognizer
         self.cloud = cloud
-        self.log_evidence = 0.0
+        self.log_evidence = float(log_evidence)
         self.pose: tuple[np.ndarray, np.ndarray] | None = None
         self.pose_std = np.zeros(3)
         self.recovery: Recovery | None = None
+        self.history: deque[Snapshot] = deque([Snapshot(None, None, copy.copy(recognizer), self.log_evidence)],
+                                              maxlen=max(int(memory), 1))
 
     def __repr__(self) -> str:
         return f"Track({self.id}, {self.origin}, evidence {self.log_evidence:.1f})"
@@ -168,6 +218,10 @@ class Track:
 
     def recovered(self, recovery: Recovery) -> None:
         self.recovery = recovery
+
+    def remember(self, index: int, pose: tuple[np.ndarray, np.ndarray]) -> None:
+        """Keep this frame's snapshot (after recognition at ``pose``): what re-injection replays from."""
+        self.history.append(Snapshot(index, pose, copy.copy(self.recognizer), self.log_evidence))
 
     def record(self) -> TrackRecord:
         """What the track is at the end of this frame."""

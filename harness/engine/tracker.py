@@ -28,6 +28,7 @@ import numpy as np
 
 from harness import geometry
 from harness.body.model import BodyModel
+from harness.engine.backward import SettledStarts, both_passes, in_forward_time, settled_starts
 from harness.engine.config import TrackerConfig
 from harness.engine.database import MotionDatabase
 from harness.engine.estimate import Estimate
@@ -36,13 +37,14 @@ from harness.engine.model import EngineModel
 from harness.engine.pose_source import GivenPose, ParticleTracks, PoseSource
 from harness.engine.records import FrameRecord, causal_estimate, offline_estimate
 from harness.engine.recovery import recover
+from harness.engine.reverse import reversed_flows, reversed_model
 from harness.engine.scoring import Scorer
 from harness.engine.track import Track
 from harness.errors import EngineError
 from harness.observation import Observation
 from harness.pinhole import Intrinsics
 
-STAGES = ("propose", "weigh", "recognise", "recover", "manage")
+STAGES = ("propose", "weigh", "recognise", "recover", "reinject", "manage")
 
 
 class _Clock:
@@ -107,22 +109,20 @@ class Tracker:
         self.tracks: list[Track] = []
         self.records: list[FrameRecord] = []
         self._timing = dict.fromkeys(STAGES, 0.0)
+        self._inputs: list[tuple] = []           # every frame's input, for the offline backward pass
+        self._sequence = (intr, fps, camera_moves)
 
     def step(self, flows: np.ndarray, camera_motion: np.ndarray | None = None, gravity: np.ndarray | None = None,
              camera_height: float | None = None) -> None:
         """One frame: flows ``(M, 4)``; the camera's own velocity ``(6,)``; the camera prior: gravity ``(3,)``
         (unit, camera frame) and the camera's height above the floor (m)."""
         frame = self._frames.next(flows, camera_motion, gravity, camera_height)
+        self._inputs.append((frame.flows, frame.camera_motion, frame.gravity, frame.camera_height))
         clock = _Clock(self._timing)
-        if not self.tracks:
-            if not frame.has_flows:         # nothing to start from yet: the frame takes the first estimate
-                self.records.append(FrameRecord(frame.index, (), self.source.known_pose(frame), 0.0))
-                return
-            self.tracks = self.source.start(frame)
-        else:
-            for track in self.tracks:
-                track.predict_belief()
-            self.source.predict(frame, self.tracks)
+        if not self.tracks and not frame.has_flows:     # nothing to start from yet: the first estimate's frame
+            self.records.append(FrameRecord(frame.index, (), self.source.known_pose(frame), 0.0))
+            return
+        self._propose(frame)
         clock.lap("propose")
         self.source.weigh(frame, self.tracks)
         clock.lap("weigh")
@@ -130,19 +130,31 @@ class Tracker:
         clock.lap("recognise")
         self._recover(frame)
         clock.lap("recover")
+        self.tracks = self.source.reinject(frame, self.tracks)
+        clock.lap("reinject")
         self.tracks = self.source.manage(self.tracks)
         clock.lap("manage")
         self.records.append(FrameRecord(frame.index, tuple(t.record() for t in self.tracks),
                                         self.source.known_pose(frame), clock.elapsed_ms()))
 
+    def _propose(self, frame: Frame) -> None:
+        """The first frame with flows starts the tracks; later frames move their beliefs and poses."""
+        if not self.tracks:
+            self.tracks = self.source.start(frame)
+            return
+        for track in self.tracks:
+            track.predict_belief()
+        self.source.predict(frame, self.tracks)
+
     def _recognise(self, frame: Frame) -> None:
         """Fold the frame into every track's belief at the track's pose (all tracks in one kernel call); each
         recursion's normaliser is new evidence for its track."""
+        poses = [t.pose for t in self.tracks]
         evidence = self.scorer.recognise(frame, [t.recognizer for t in self.tracks],
-                                         np.array([t.pose[0] for t in self.tracks]),
-                                         np.array([t.pose[1] for t in self.tracks]))
-        for track, gained in zip(self.tracks, evidence):
+                                         np.array([p for p, _ in poses]), np.array([q for _, q in poses]))
+        for track, gained, pose in zip(self.tracks, evidence, poses):
             track.log_evidence += gained
+            track.remember(frame.index, pose)
 
     def _recover(self, frame: Frame) -> None:
         """Recovery for the ``recover_tracks`` tracks with the most evidence; the others keep their belief's
@@ -160,6 +172,26 @@ class Tracker:
         causal = causal_estimate(self.records, self.model.db.classes_.copy(),
                                  {k: 1e3 * v / max(n, 1) for k, v in self._timing.items()},
                                  temperature=self.config.posterior_temperature, floor=self.config.posterior_floor)
-        offline = offline_estimate(self.records, causal, self.config.smoothing_frames,
-                                   stream=self.config.primitive_switch > 0)
+        stream = self.config.primitive_switch > 0
+        if self.config.backward_pass and not stream and not self._sequence[2] and not self.source.fixed:
+            offline = self._backward_pass()
+        else:
+            offline = offline_estimate(self.records, causal, self.config.smoothing_frames, stream=stream)
         return replace(causal, offline=offline)
+
+    def _backward_pass(self) -> Estimate:
+        """The offline estimate of the backward pass (``backward``): the clip tracked again in reversed time
+        from the poses this pass ended with, in forward time."""
+        intr, fps, _ = self._sequence
+        model = reversed_model(self.model)
+        back = Tracker(model.db, model.body, replace(self.config, backward_pass=False), model=model)
+        source = SettledStarts(back.scorer, self.source.rng, settled_starts(self.tracks, model.n_classes))
+        back.reset(intr, fps, source=source)
+        flows = reversed_flows([f for f, _, _, _ in self._inputs])
+        for s, f in enumerate(flows):
+            _, _, gravity, height = self._inputs[len(flows) - 1 - s]
+            back.step(f, None, gravity, height)
+        offline = in_forward_time(back.result().offline)
+        if not self.config.offline_both_passes:
+            return offline
+        return both_passes(offline, self.records[-1], back.records[-1], self.config)

@@ -1,0 +1,72 @@
+"""Time reversal against independent computations: reversed flows against the backward differences of the
+reversed point paths; the reversed model's point distributions against the transform of the reversed database
+computed from scratch; the reversed chains' dwell and direction; the backward pass end to end."""
+
+import numpy as np
+import pytest
+
+from engine_fixtures import CLASSES, synthetic_demos, synthetic_observation
+from harness.engine import MotionDatabase, Tracker, TrackerConfig
+from harness.engine.database import left_to_right
+from harness.engine.model import EngineModel
+from harness.engine.reverse import reversed_database, reversed_flows, reversed_model, reversed_start, reversed_transitions
+
+
+@pytest.fixture(scope="module")
+def trained(body):
+    rng = np.random.default_rng(1)
+    train = [m for c in CLASSES for m in synthetic_demos(body, c, 4, rng)]
+    return MotionDatabase(n_states=6, cyclic=("march", "wave"), n_iter=5).fit(train)
+
+
+def test_reversed_flows_pair_each_position_with_the_velocity_of_the_interval_it_ends():
+    rng = np.random.default_rng(0)
+    fps, T, N = 30.0, 7, 5
+    paths = np.cumsum(rng.normal(0, 3, (T, N, 2)), axis=0)           # pixel paths of N points
+    forward = [np.zeros((0, 4))] + [np.concatenate([paths[t], (paths[t] - paths[t - 1]) * fps], axis=1)
+                                    for t in range(1, T)]
+    back = reversed_flows(forward)
+    assert len(back) == T and len(back[-1]) == 0
+    for s in range(T - 1):
+        t = T - 1 - s            # the reversed clip's frame s is time t: the point at p_t moving to p_{t-1}
+        expected = np.concatenate([paths[t], (paths[t - 1] - paths[t]) * fps], axis=1)
+        np.testing.assert_allclose(back[s], expected, atol=1e-9)
+
+
+def test_a_left_to_right_chain_reversed_keeps_its_dwell_and_runs_the_other_way():
+    a = left_to_right(5, 4.0, cyclic=False)
+    r = reversed_transitions(a)
+    np.testing.assert_allclose(r.sum(axis=1), 1.0)
+    np.testing.assert_allclose(np.diag(r)[1:4], np.diag(a)[1:4])
+    for k in range(1, 4):
+        assert r[k, k - 1] == pytest.approx(1 - a[k, k])
+    assert r[0, 0] == 1.0                                            # the first state absorbs backwards
+    assert r[4, 4] == pytest.approx(np.mean(np.diag(a)[:4]))         # the end rest is left backwards
+    np.testing.assert_allclose(reversed_start(a), np.eye(5)[4])      # ... and the last state starts
+    cyc = left_to_right(4, 3.0, cyclic=True)
+    rc = reversed_transitions(cyc)
+    assert rc[0, 3] == pytest.approx(1 - cyc[0, 0])                  # the wrap runs backwards too
+    np.testing.assert_allclose(reversed_start(cyc), np.full(4, 0.25))
+
+
+def test_the_reversed_model_is_the_transform_of_the_reversed_database(body, trained):
+    model = EngineModel.build(trained, body, 40, 3)
+    rev = reversed_model(model)
+    direct = EngineModel.build(reversed_database(trained), body, 40, 3)
+    for name in ("pos", "pos_cov", "vel", "vel_cov", "base_linear", "base_angular"):
+        np.testing.assert_allclose(getattr(rev.dists, name), getattr(direct.dists, name), rtol=1e-7, atol=1e-9,
+                                   err_msg=name)
+    np.testing.assert_allclose(rev.db.transmat_.sum(axis=-1), 1.0)
+    np.testing.assert_allclose(rev.db.startprob_.sum(axis=-1), 1.0)
+
+
+def test_the_backward_pass_is_repeatable_and_covers_every_frame(body, trained):
+    m = synthetic_demos(body, "march", 1, np.random.default_rng(3), seconds=0.6)[0]
+    obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))
+    cfg = TrackerConfig(particles=60, model_points=40, track_turns=(), init_factor=2, backward_pass=True)
+    one = Tracker(trained, body, cfg, rng=np.random.default_rng(5)).run(obs).offline
+    two = Tracker(trained, body, cfg, rng=np.random.default_rng(5)).run(obs).offline
+    np.testing.assert_array_equal(one.qpos, two.qpos)
+    np.testing.assert_array_equal(one.class_posterior, two.class_posterior)
+    assert one.qpos.shape == (len(obs), 57) and np.isfinite(one.qpos).all()
+    np.testing.assert_allclose(one.class_posterior, np.repeat(one.class_posterior[:1], len(obs), axis=0))
