@@ -30,7 +30,7 @@ import numpy as np
 
 from harness.engine.features import (N_FEATURES, measured_features, mirror_features, mirror_variances,
                                      motion_features)
-from harness.engine.training import fit_primitive, masked_moments
+from harness.engine.training import fit_primitive, left_to_right, masked_moments  # noqa: F401 (left_to_right re-exported)
 from harness.engine.variance_floor import group_floor, variance_floor
 from harness.errors import EngineError
 from harness.io import save_npz_atomic
