@@ -192,3 +192,80 @@ def test_measured_joints_are_those_that_move(body):
     q[:, 7 + 5] = np.deg2rad(np.linspace(0.0, 2.0, 10))
     measured = Motion(q, 30.0, "x").measured_joints
     assert measured.sum() == 1 and measured[5]
+
+
+def _brute_force_baum_welch(seqs, masks, start, trans, means, covars, floor, n_iter, floor_each_step=True):
+    """Baum-Welch by enumerating every state path (no forward-backward recursion, no hmmlearn): the masked
+    emission is the product over each frame's measured features, the M-step's sums run over the frames that
+    measure each feature, and the variance is ``max(estimate, floor)`` (hmmlearn's estimate: its default
+    ``covars_prior`` 0.01 over the occupancy). ``floor_each_step=False``: the floor applied after EM only."""
+    from itertools import product
+    K = len(start)
+    for _ in range(n_iter):
+        post_sum, obs, obs2 = np.zeros(means.shape), np.zeros(means.shape), np.zeros(means.shape)
+        xi, first = np.zeros((K, K)), np.zeros(K)
+        for y, mk in zip(seqs, masks):
+            T = len(y)
+            logpdf = -0.5 * mk[:, None, :] * ((y[:, None, :] - means[None]) ** 2 / covars[None]
+                                              + np.log(2.0 * np.pi * covars[None]))
+            emit = logpdf.sum(-1)                                                        # (T, K)
+            gamma, pair, total = np.zeros((T, K)), np.zeros((K, K)), 0.0
+            for path in product(range(K), repeat=T):
+                p = start[path[0]] * np.prod([trans[a, b] for a, b in zip(path[:-1], path[1:])])
+                if p == 0.0:
+                    continue
+                p *= np.exp(sum(emit[t, s] for t, s in enumerate(path)))
+                total += p
+                gamma[np.arange(T), path] += p
+                for a, b in zip(path[:-1], path[1:]):
+                    pair[a, b] += p
+            gamma, pair = gamma / total, pair / total
+            first += gamma[0]
+            xi += pair
+            post_sum += gamma.T @ mk
+            obs += gamma.T @ (mk * y)
+            obs2 += gamma.T @ (mk * y * y)
+        start = first / first.sum()
+        trans = xi / xi.sum(axis=1, keepdims=True)
+        means = obs / post_sum
+        var = (0.01 + obs2 - means**2 * post_sum) / post_sum
+        covars = np.maximum(var, floor) if floor_each_step else var
+    return means, np.maximum(covars, floor), trans, start
+
+
+def test_masked_floored_baum_welch_against_enumerating_every_path():
+    """Two EM steps of ``fit_primitive`` equal Baum-Welch computed by brute force over all state paths, with
+    some frames not measuring some features and a floor that binds; the floor kept only after EM, or the
+    unmeasured frames counted, give other answers (so the comparison can tell the rules apart)."""
+    rng = np.random.default_rng(7)
+    K, F, T = 3, 3, 7
+    seqs = []
+    for _ in range(3):
+        level = np.repeat(rng.normal(0.0, 2.0, (K, F)), T // K + 1, axis=0)[:T]
+        seqs.append(level + rng.normal(0.0, 0.4, (T, F)))
+    masks = [np.ones((T, F), dtype=bool) for _ in seqs]
+    masks[1][:, 2] = False                      # a demonstration that never measures feature 2
+    masks[2][[1, 4], 0] = False                 # and two frames that do not measure feature 0
+    seqs[1][:, 2] = 40.0                        # what it holds there must not matter
+    floor = np.array([0.3, 1e-3, 1e-3])        # binds for feature 0 (within-state spread about 0.16)
+    population = (np.zeros(F), np.ones(F))
+    got = fit_primitive(seqs, masks, n_states=K, cyclic=False, floor=floor, n_iter=2, population=population)
+
+    # The initialisation written out: equal time segments, moments over the measured frames, floored.
+    seg = [np.minimum((np.arange(T) * K) // T, K - 1) for _ in seqs]
+    x, m, s = np.concatenate(seqs), np.concatenate(masks), np.concatenate(seg)
+    means0 = np.array([[x[(s == k) & m[:, f], f].mean() for f in range(F)] for k in range(K)])
+    covars0 = np.maximum([[x[(s == k) & m[:, f], f].var() for f in range(F)] for k in range(K)], floor)
+    start0, trans0 = np.eye(K)[0], left_to_right(K, T / K, False)
+    want = _brute_force_baum_welch(seqs, [mk.astype(float) for mk in masks], start0, trans0, means0, covars0,
+                                   floor, n_iter=2)
+    for g, w in zip(got, want):
+        np.testing.assert_allclose(g, w, rtol=1e-7, atol=1e-9)
+    assert np.any(np.isclose(got[1][:, 0], floor[0]))                   # the floor binds somewhere
+
+    posthoc = _brute_force_baum_welch(seqs, [mk.astype(float) for mk in masks], start0, trans0, means0,
+                                      covars0, floor, n_iter=2, floor_each_step=False)
+    assert not np.allclose(posthoc[0], got[0], rtol=1e-4)
+    unmasked = fit_primitive(seqs, [np.ones((T, F), dtype=bool)] * 3, n_states=K, cyclic=False, floor=floor,
+                             n_iter=2, population=population)
+    assert not np.allclose(unmasked[0], got[0], rtol=1e-4)
