@@ -116,3 +116,24 @@ def test_shipped_table_keeps_the_guarantees(label, body):
     """Every class of the shipped table keeps the performer's guarantees on takes the fit never saw."""
     for m in procedural_set(label, 6, 77):
         assert guarantee_violations(m, body) == [], (label, m.subject)
+
+
+def test_a_joint_a_capture_holds_still_is_left_out_of_its_distance(body):
+    """A real set whose one demonstration holds a joint at zero (a BVH wrist): the joint's distance is the one
+    to the demonstrations that measure it; a joint no demonstration measures has none (NaN), unless all joints
+    are asked for (``measured_only=False``, where the constant counts)."""
+    takes = procedural_set("wave", 2, 4, NEUTRAL)
+    j, k = JOINT_NAMES.index("rwrist_z"), JOINT_NAMES.index("lwrist_z")
+    held = []
+    for m in takes:
+        q = np.array(m.qpos)
+        q[:, 7 + k] = 0.0
+        held.append(m.replace(qpos=q))
+    q = np.array(takes[1].qpos)
+    q[:, 7 + j] = 0.0
+    partly = [takes[0], takes[1].replace(qpos=q)]
+    procedural = procedural_set("wave", 3, 5, NEUTRAL)
+    d = joint_distances(held, procedural)
+    assert np.isnan(d[k]) and not np.isnan(d).sum() > 1
+    assert joint_distances(held, procedural, measured_only=False)[k] > 0
+    np.testing.assert_allclose(joint_distances(partly, procedural)[j], joint_distances(takes[:1], procedural)[j])

@@ -165,6 +165,26 @@ def test_the_code_version_is_part_of_the_hash(monkeypatch):
     assert scenario_hash(s) != before
 
 
+def test_the_code_version_follows_the_shipped_tables_and_not_the_result_formatting(monkeypatch, tmp_path):
+    """A refitted table (``*.json``: the performer's calibration, the human floor) is new code; a change to a
+    results-only module is not."""
+    import harness.version as version
+
+    (tmp_path / "evaluation").mkdir()
+    (tmp_path / "a.py").write_text("x = 1\n")
+    (tmp_path / "table.json").write_text("[1]\n")
+    (tmp_path / "evaluation" / "report.py").write_text("y = 1\n")
+    monkeypatch.setattr(version, "PACKAGE_DIR", tmp_path)
+    seen = []
+    for path, text in ((None, None), ("table.json", "[2]\n"), ("evaluation/report.py", "y = 2\n")):
+        if path:
+            (tmp_path / path).write_text(text)
+        version.code_version.cache_clear()
+        seen.append(version.code_version())
+    version.code_version.cache_clear()
+    assert seen[0] != seen[1] == seen[2]
+
+
 def test_with_captures_needs_a_capture_test_split():
     with pytest.raises(ScenarioError, match=r"database.with_captures: needs test.split 'captures'"):
         parse_scenario({"name": "w", "database": {"with_captures": True}}, "w.yaml")

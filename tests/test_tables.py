@@ -77,6 +77,25 @@ def test_confusion_and_per_class_count_by_hand(rows):
     assert r["accuracy"].item() == pytest.approx(g.loc[g["class_true"] == "walk", "correct"].mean())
 
 
+def test_class_answers_and_right_out_of_runs_count_by_hand(rows):
+    """``answers``: per answered class how often it answered, rightly and for which other classes' motions;
+    ``class_accuracy``: right/runs per true class, one column per recognising method."""
+    ans, acc = tables.answers(rows), tables.class_accuracy(rows)
+    assert "no_database" not in set(ans["method"]) and "no_database" not in acc.columns
+    for (cond, method), g in rows[rows["method"] != "no_database"].groupby(["condition", "method"]):
+        mine = ans[(ans["condition"] == cond) & (ans["method"] == method)]
+        assert mine["answered"].sum() == len(g) and list(mine["for_others"]) == sorted(mine["for_others"], reverse=True)
+        for _, a in mine.iterrows():
+            said = g[g["class_pred"] == a["answer"]]
+            assert a["answered"] == len(said) and a["right"] == int((said["class_true"] == a["answer"]).sum())
+            others = said[said["class_true"] != a["answer"]]["class_true"].value_counts()
+            assert a["for_others"] == others.sum()
+            assert sorted(a["from"].split(", ")) == sorted(f"{c} {n}" for c, n in others.items()) if len(others) else a["from"] == ""
+        for t, gt in g.groupby("class_true"):
+            cell = acc[(acc["condition"] == cond) & (acc["class_true"] == t)][method].item()
+            assert cell == f"{int(gt['correct'].sum())}/{len(gt)}"
+
+
 def test_paired_tests_pair_the_same_runs(rows):
     pt = tables.paired_tests(rows)
     cond = rows["condition"].iloc[0]
@@ -194,3 +213,19 @@ def test_heading_over_time_is_the_median_of_the_stored_curves(rows):
     cell = curve[(curve["condition"] == cond) & (curve["method"] == "full")].iloc[3]
     assert cell["heading_err_median_deg"] == pytest.approx(np.median([c[3] for c in g["heading_curve"]]))
     assert cell["q25"] <= cell["heading_err_median_deg"] <= cell["q75"] and cell["runs"] == len(g)
+
+
+def test_a_capture_report_says_which_classes_each_condition_tested():
+    """A cross-subject condition that tested walk and kick of a database with squat too: the report names the
+    tested classes with their runs and the one left out, and prints each confusion matrix as a table."""
+    from harness.evaluation.report import _capture_sections
+
+    scenario = parse_scenario({"name": "x", "database": {"source": "capture", "classes": ["walk", "kick", "squat"]},
+                               "test": {"split": "cross_subject"}, "methods": ["joint_space"]})
+    runs = pd.DataFrame({"run_key": ["a", "b", "c"], "condition": "base", "method": "joint_space",
+                         "class_true": ["walk", "walk", "kick"], "class_pred": ["walk", "kick", "kick"],
+                         "correct": [1, 0, 1]})
+    conf = tables.confusion(runs, ["walk", "kick", "squat"])
+    text = "\n".join(_capture_sections(scenario, runs, {"_confusion_matrices": conf}))
+    assert "`base`: walk (2), kick (1); not tested: squat (performed by one subject only)" in text
+    assert "| walk | 1 | 1 | 0 |" in text and "Confusion: `base`, `joint_space`" in text

@@ -5,7 +5,8 @@ Each primitive ``c`` is an HMM with ``K`` states; state ``k`` emits the feature 
 Transitions go from a state to itself or to the next one (left-to-right); cyclic primitives (walk, run, ...)
 may also go from the last state back to the first. Training is Baum-Welch (hmmlearn) from several
 demonstrations, initialised by cutting every demonstration into ``K`` equal time segments, which keeps the
-states ordered in time and makes EM deterministic.
+states ordered in time and makes EM deterministic; every variance keeps a per-feature floor (the human floor,
+``variance_floor``), and a demonstration trains only the features it measures (``training``).
 
 **Both hands** (``mirrored``, the default). A demonstrator performs a one-sided primitive with one side, but a
 test performer may use the other, and the tracker's twin pose sees every body mirrored. So each primitive's
@@ -21,48 +22,22 @@ Then ``p(M y_1:T | c) = p(y_1:T | c)`` for every feature sequence: the database 
 
 from __future__ import annotations
 
-import logging
 import zipfile
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
-from hmmlearn.hmm import GaussianHMM
 
-from harness.engine.features import (ANGLE_RATES, ANGLES, BASE_ANGULAR, BASE_LINEAR, N_FEATURES, mirror_features,
-                                     mirror_variances, motion_features)
+from harness.engine.features import (N_FEATURES, measured_features, mirror_features, mirror_variances,
+                                     motion_features)
+from harness.engine.training import fit_primitive, left_to_right, masked_moments  # noqa: F401 (left_to_right re-exported)
+from harness.engine.variance_floor import group_floor, variance_floor
 from harness.errors import EngineError
 from harness.io import save_npz_atomic
 from harness.motion.motion import Motion
 
 DEFAULT_STATES = 20
-# Variance floor per feature group, as standard deviations: (2 deg)^2 for angles, (0.3 rad/s)^2 for their
-# rates, (0.05 m/s)^2 and (0.1 rad/s)^2 for the base. Below these the Gaussians claim a repeatability that
-# a human demonstrator does not have, and held-out demonstrations fall outside them.
-FLOOR_STD = ((ANGLES, np.deg2rad(2.0)), (ANGLE_RATES, 0.3), (BASE_LINEAR, 0.05), (BASE_ANGULAR, 0.1))
 _FORMAT = "harness-motion-database-1"
-
-
-def variance_floor() -> np.ndarray:
-    """``(106,)`` minimum variance per feature."""
-    floor = np.empty(N_FEATURES)
-    for sl, std in FLOOR_STD:
-        floor[sl] = std**2
-    return floor
-
-
-def left_to_right(n_states: int, mean_dwell: float, cyclic: bool) -> np.ndarray:
-    """``(K, K)`` transition matrix: stay with probability ``1 - 1/dwell``, else step to the next state."""
-    if n_states < 1:
-        raise EngineError(f"n_states must be >= 1, got {n_states}")
-    step = 1.0 / max(mean_dwell, 1.0)
-    a = np.eye(n_states) * (1.0 - step)
-    a[np.arange(n_states - 1), np.arange(1, n_states)] = step
-    if cyclic:
-        a[-1, 0] = step
-    else:
-        a[-1, -1] = 1.0
-    return a
 
 
 def mirror_chains(means: np.ndarray, covars: np.ndarray, transmat: np.ndarray, startprob: np.ndarray
@@ -84,14 +59,15 @@ class MotionDatabase:
 
     Hyperparameters: ``n_states`` (K), ``cyclic`` (names of primitives whose last state wraps to the first;
     the data source knows them, e.g. ``harness.motion.performer.CYCLIC``), ``n_iter`` (Baum-Welch iterations),
-    ``mirrored`` (each HMM also holds its mirror-image chain: ``S = 2K`` states, module docstring; else ``S = K``).
+    ``mirrored`` (each HMM also holds its mirror-image chain: ``S = 2K`` states, module docstring; else ``S = K``),
+    ``floor`` (``(106,)`` variance floor per feature, kept by every M-step; default ``variance_floor()``).
     Learned (after ``fit``): ``classes_`` (C,), ``cyclic_`` (C,) bool (whether each primitive's HMM wraps),
     ``means_`` (C, S, 106), ``covars_`` (C, S, 106) diagonal variances, ``transmat_`` (C, S, S),
     ``startprob_`` (C, S), ``fps_``. Users of the HMMs take ``S`` from the arrays, not from ``n_states``.
     """
 
     def __init__(self, n_states: int = DEFAULT_STATES, cyclic: Iterable[str] = (), n_iter: int = 15,
-                 mirrored: bool = True):
+                 mirrored: bool = True, floor: np.ndarray | None = None):
         if n_states < 2:
             raise EngineError(f"n_states must be >= 2, got {n_states}")
         if n_iter < 0:
@@ -100,11 +76,16 @@ class MotionDatabase:
         self.cyclic = tuple(cyclic)
         self.n_iter = int(n_iter)
         self.mirrored = bool(mirrored)
+        self.floor = variance_floor() if floor is None else np.asarray(floor, dtype=float)
+        if self.floor.shape != (N_FEATURES,) or not np.all(np.isfinite(self.floor)) or np.any(self.floor <= 0):
+            raise EngineError(f"floor must be {N_FEATURES} positive variances, got shape {self.floor.shape}")
 
     # --- learning -------------------------------------------------------------------------------
 
-    def fit(self, motions: Sequence[Motion]) -> "MotionDatabase":
-        """Learn one HMM per label found in ``motions`` (several demonstrations each, one fps)."""
+    def fit(self, motions: Sequence[Motion], population: Sequence[Motion] | None = None) -> "MotionDatabase":
+        """Learn one HMM per label found in ``motions`` (several demonstrations each, one fps). A feature no
+        demonstration of a class measures takes the Gaussian of the measured frames of ``population`` (default:
+        ``motions``; ``training``)."""
         if not motions:
             raise EngineError("no training motions given")
         fps = {m.fps for m in motions}
@@ -112,20 +93,23 @@ class MotionDatabase:
             raise EngineError(f"training motions must share one frame rate, got {sorted(fps)}")
         classes = sorted({m.label for m in motions})
         K = self.n_states
-        floor = variance_floor()
+        floor = self.floor
         means = np.empty((len(classes), K, N_FEATURES))
         covars = np.empty_like(means)
         trans = np.empty((len(classes), K, K))
         start = np.empty((len(classes), K))
+        feats = [motion_features(m) for m in motions]
+        masks = [np.broadcast_to(measured_features(m), f.shape) for m, f in zip(motions, feats)]
+        population = self._population(motions if population is None else population)
         for c, label in enumerate(classes):
-            feats = [motion_features(m) for m in motions if m.label == label]
-            short = [len(f) for f in feats if len(f) < K]
+            own = [i for i, m in enumerate(motions) if m.label == label]
+            short = [len(feats[i]) for i in own if len(feats[i]) < K]
             if short:
                 raise EngineError(f"class {label!r}: a demonstration of {short[0]} frames is shorter than "
                                   f"the {K} states")
-            hmm = self._fit_one(feats, label in self.cyclic, floor)
-            means[c], trans[c], start[c] = hmm.means_, hmm.transmat_, hmm.startprob_
-            covars[c] = np.maximum(np.diagonal(hmm.covars_, axis1=1, axis2=2), floor)
+            means[c], covars[c], trans[c], start[c] = fit_primitive(
+                [feats[i] for i in own], [masks[i] for i in own], n_states=K, cyclic=label in self.cyclic,
+                floor=floor, n_iter=self.n_iter, population=population)
         self.classes_ = np.array(classes)
         self.cyclic_ = np.isin(self.classes_, list(self.cyclic))
         if self.mirrored:
@@ -134,28 +118,13 @@ class MotionDatabase:
         self.fps_ = float(fps.pop())
         return self
 
-    def _fit_one(self, feats: list[np.ndarray], cyclic: bool, floor: np.ndarray) -> GaussianHMM:
-        K = self.n_states
-        segments = [np.minimum((np.arange(len(f)) * K) // len(f), K - 1) for f in feats]
-        x = np.concatenate(feats)
-        seg = np.concatenate(segments)
-        hmm = GaussianHMM(n_components=K, covariance_type="diag", n_iter=self.n_iter, init_params="",
-                          params="stmc", min_covar=1e-6, random_state=0, implementation="log")
-        hmm.startprob_ = np.eye(K)[0]
-        hmm.transmat_ = left_to_right(K, np.mean([len(f) for f in feats]) / K, cyclic)
-        hmm.means_ = np.stack([x[seg == k].mean(axis=0) for k in range(K)])
-        hmm.covars_ = np.stack([np.maximum(x[seg == k].var(axis=0), floor) for k in range(K)])
-        if self.n_iter:
-            # hmmlearn logs a warning when an EM step lowers the likelihood by rounding; the floor we apply
-            # afterwards matters more than the last digits of EM, so keep the log quiet.
-            logger = logging.getLogger("hmmlearn.base")
-            level = logger.level
-            logger.setLevel(logging.ERROR)
-            try:
-                hmm.fit(x, [len(f) for f in feats])
-            finally:
-                logger.setLevel(level)
-        return hmm
+    def _population(self, motions: Sequence[Motion]) -> tuple[np.ndarray, np.ndarray]:
+        """``(106,)`` mean and variance of the measured frames of ``motions`` (no frame: 0 and the floor)."""
+        feats = [motion_features(m) for m in motions]
+        mask = np.concatenate([np.broadcast_to(measured_features(m), f.shape) for m, f in zip(motions, feats)])
+        mean, var, _ = masked_moments(np.concatenate(feats), mask.astype(float), np.ones((1, len(mask))),
+                                      (np.zeros((1, N_FEATURES)), self.floor[None]))
+        return mean[0], var[0]
 
     # --- use ------------------------------------------------------------------------------------
 
@@ -196,7 +165,7 @@ class MotionDatabase:
             "format": np.array(_FORMAT), "classes": self.classes_.astype(str), "means": self.means_,
             "covars": self.covars_, "transmat": self.transmat_, "startprob": self.startprob_,
             "fps": np.array(self.fps_), "cyclic": np.array(self.cyclic, dtype=str),
-            "n_iter": np.array(self.n_iter), "mirrored": np.array(self.mirrored),
+            "n_iter": np.array(self.n_iter), "mirrored": np.array(self.mirrored), "floor": self.floor,
         }
 
     def save(self, path: str | Path) -> None:
@@ -210,8 +179,10 @@ class MotionDatabase:
                     raise EngineError(f"{path}: not a motion database (format mismatch, expected {_FORMAT!r})")
                 # Files written before both-handed databases hold one chain.
                 mirrored = bool(z["mirrored"]) if "mirrored" in z.files else False
+                # Files written before issue 24 were trained with the group floor alone.
+                floor = z["floor"].astype(float) if "floor" in z.files else group_floor()
                 db = cls(n_states=z["means"].shape[1] // (2 if mirrored else 1), cyclic=[str(c) for c in z["cyclic"]],
-                         n_iter=int(z["n_iter"]), mirrored=mirrored)
+                         n_iter=int(z["n_iter"]), mirrored=mirrored, floor=floor)
                 db.classes_ = z["classes"].astype(str)
                 db.cyclic_ = np.isin(db.classes_, list(db.cyclic))
                 db.means_, db.covars_ = z["means"].astype(float), z["covars"].astype(float)

@@ -35,6 +35,13 @@ def motion_features(motion: Motion) -> np.ndarray:
     return np.concatenate([motion.angles, vel.angles, vel.base_linear, vel.base_angular], axis=1)
 
 
+def measured_features(motion: Motion) -> np.ndarray:
+    """``(106,)`` bool: the features a demonstration measures: its measured joints' angles and rates
+    (``Motion.measured_joints``) and the base's velocities."""
+    joints = motion.measured_joints
+    return np.concatenate([joints, joints, np.ones(6, dtype=bool)])
+
+
 # The mirror through the base frame's sagittal x-z plane (x forward, y to the left, z up), S_b = diag(1, -1, 1):
 # angles and their rates by the body's joint mirror; the base's linear velocity reflected, S_b v = (vx, -vy, vz);
 # its angular velocity, a pseudovector, det(S_b) S_b w = (-wx, wy, -wz) (roll and yaw rates change sides).

@@ -80,7 +80,12 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
             *_section_plots(figures, ("heading_over_time",)),
             "## Recognition per class\n",
             *_section_plots(figures, ("class_accuracy",)),
-            "(numbers in `per_class.csv`)\n",
+            "Right answers out of runs per true class (more columns in `per_class.csv`):\n",
+            markdown(tables["class_accuracy"]),
+            "The classes answered for motions of other classes (`answers.csv` has every answer): a class a "
+            "database answers for whatever it does not know stands at the top.\n",
+            markdown(_top_answers(tables["answers"])),
+            *_capture_sections(scenario, rows, tables),
         ]
     if len(tables["calibration"]):
         parts += [
@@ -165,6 +170,44 @@ def _stream_report(scenario: Scenario, results_dir: Path, rows: pd.DataFrame, ta
                   "with its frame accuracy and F1@25.\n",
                   *[f"![{Path(f).stem}]({f})\n" for f in timelines]]
     return _finish(parts, scenario, tables, results_dir)
+
+
+#: Answered-for-others classes the report lists per condition and method (the rest are in ``answers.csv``).
+TOP_ANSWERS = 3
+
+
+def _top_answers(table: pd.DataFrame) -> pd.DataFrame:
+    """The ``TOP_ANSWERS`` classes answered most often for other classes' motions, per condition and method."""
+    wrong = table[table["for_others"] > 0]
+    return wrong.groupby(["condition", "method"], sort=False).head(TOP_ANSWERS).reset_index(drop=True)
+
+
+def tested_on_captures(scenario: Scenario) -> bool:
+    return scenario.database.source == "capture" or scenario.test.split == "captures"
+
+
+def _capture_sections(scenario: Scenario, rows: pd.DataFrame, tables: dict) -> list[str]:
+    """For scenarios tested on real captures: which classes each condition tested (a cross-subject condition
+    tests the classes that at least two subjects performed), and every confusion matrix as a table."""
+    if not tested_on_captures(scenario):
+        return []
+    classes = list(scenario.database.classes or scenario.classes)
+    lines = []
+    for cond, grp in rows.groupby("condition", sort=False):
+        runs = grp.drop_duplicates("run_key")["class_true"].value_counts()
+        tested = [c for c in classes if c in runs] + sorted(set(runs.index) - set(classes))
+        left = [c for c in classes if c not in runs]
+        line = f"- `{cond}`: " + ", ".join(f"{c} ({runs[c]})" for c in tested)
+        split = grp["test.split"].iloc[0] if "test.split" in grp else scenario.test.split
+        if left:
+            why = " (performed by one subject only)" if split == "cross_subject" else " (no demonstration)"
+            line += f"; not tested: {', '.join(left)}{why}"
+        lines.append(line + "\n")
+    parts = ["### Classes tested\n", "".join(lines)]
+    for (cond, method), mat in tables["_confusion_matrices"].items():
+        table = mat.reset_index().rename(columns={"true": "true \\ answer"})
+        parts += [f"### Confusion: `{cond}`, `{method}`\n", markdown(table)]
+    return parts
 
 
 def _view_section(figures: list[str]) -> list[str]:

@@ -101,6 +101,40 @@ def per_class(rows: pd.DataFrame) -> pd.DataFrame:
     return _order(out, ["class_true"])
 
 
+def class_accuracy(rows: pd.DataFrame) -> pd.DataFrame:
+    """Per condition and true class, each recognising method's ``right/runs`` (one column per method): the
+    per-class table the report prints."""
+    table = per_class(rows)
+    if not len(table):
+        return pd.DataFrame(columns=["condition", "class_true"])
+    table = table.assign(cell=[f"{round(a * n)}/{n}" for a, n in zip(table["accuracy"], table["runs"])])
+    wide = table.pivot_table(index=["condition", "class_true"], columns="method", values="cell", aggfunc="first",
+                             sort=False).reset_index()
+    methods = sorted(set(table["method"]), key=_method_rank)
+    return wide[["condition", "class_true", *methods]].rename_axis(columns=None)
+
+
+def answers(rows: pd.DataFrame) -> pd.DataFrame:
+    """Per condition, recognising method and answered class: how often it was the answer (``answered``), for
+    a motion of that class (``right``) and of another (``for_others``), and which true classes those others
+    were (``from``, most first): the classes a database answers for whatever it does not know. Sorted by
+    ``for_others``, most first."""
+    g = recognising(rows)
+    out = []
+    if "class_pred" not in g:           # streams are scored per frame (segments, not one answer)
+        g = g.iloc[:0].assign(class_pred=[])
+    g = g[g["class_pred"].astype(str) != ""]
+    for (cond, method), grp in g.groupby(["condition", "method"], sort=False):
+        for pred, sub in grp.groupby("class_pred", sort=False):
+            wrong = sub[sub["class_true"] != pred]
+            counts = wrong["class_true"].value_counts()
+            out.append({"condition": cond, "method": method, "answer": pred, "answered": len(sub),
+                        "right": int((sub["class_true"] == pred).sum()), "for_others": len(wrong),
+                        "from": ", ".join(f"{c} {n}" for c, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))})
+    table = pd.DataFrame(out, columns=["condition", "method", "answer", "answered", "right", "for_others", "from"])
+    return _order(table.assign(_o=-table["for_others"]), ["_o", "answer"]).drop(columns="_o") if len(table) else table
+
+
 def confusion(rows: pd.DataFrame, classes: list[str]) -> dict[tuple[str, str], pd.DataFrame]:
     """Count matrices (true class rows x predicted class columns) per (condition, method); methods that
     recognise only."""
@@ -305,7 +339,8 @@ def by_view(rows: pd.DataFrame, n_boot: int = N_BOOT, seed: int = 0) -> pd.DataF
 
 def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str],
                  n_boot: int = N_BOOT, seed: int = 0) -> dict[str, pd.DataFrame]:
-    """Write ``summary``, ``headline``, ``per_class``, ``confusion``, ``paired_tests``, ``accuracy_over_time``,
+    """Write ``summary``, ``headline``, ``per_class``, ``class_accuracy``, ``answers``, ``confusion``,
+    ``paired_tests``, ``accuracy_over_time``,
     ``heading_over_time``, ``worst_runs``, ``calibration``, ``reliability`` and ``by_view`` as CSV and Markdown,
     and ``metrics.json`` (pooled metrics), under ``out_dir``. Returns the tables by name."""
     out_dir = Path(out_dir)
@@ -316,7 +351,8 @@ def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], clas
     else:
         head = STREAM_HEADLINE if is_stream(rows) else HEADLINE
     tables = {"summary": summ, "headline": headline(summ, swept, head),
-              "per_class": per_class(rows), "paired_tests": paired_tests(rows),
+              "per_class": per_class(rows), "class_accuracy": class_accuracy(rows), "answers": answers(rows),
+              "paired_tests": paired_tests(rows),
               "timing": headline(timing, swept, TIMING),
               "accuracy_over_time": accuracy_over_time(rows), "heading_over_time": heading_over_time(rows),
               "worst_runs": worst_runs(rows),

@@ -24,6 +24,13 @@ class MotionError(HarnessError):
     """A motion that is malformed or cannot be read."""
 
 
+#: A capture that holds a joint within this range (degrees) over a whole demonstration does not measure it:
+#: the BVH conversions' hands and wrist twist stay at the retargeting's warm start, no capture drives the neck's
+#: and head's twist, and some files hold whole limbs at zero (docs/captures.md). A joint a person moves at all
+#: moves more than this; the procedural performer's smooth noise moves every joint.
+MEASURED_RANGE_DEG = 0.5
+
+
 @dataclass(frozen=True)
 class MotionVelocities:
     """Velocities of a motion, all ``(T, k)`` per second.
@@ -87,6 +94,12 @@ class Motion:
     @property
     def angles(self) -> np.ndarray:
         return self.qpos[:, 7:]
+
+    @property
+    def measured_joints(self) -> np.ndarray:
+        """``(50,)`` bool: the joints this demonstration measures, i.e. that move by more than
+        ``MEASURED_RANGE_DEG`` over it (module constant)."""
+        return np.ptp(self.angles, axis=0) > np.deg2rad(MEASURED_RANGE_DEG)
 
     @property
     def base_pos(self) -> np.ndarray:

@@ -1,0 +1,196 @@
+"""How the database's training rule biases recognition on real captures: joint-space recognition (the
+``joint_space`` method, exactly) under alternative rules, on the capture scenarios' own splits.
+
+Run: ``python benchmarks/database_rules.py [DIR] [--rules A,B] [--scenarios S,T]`` (DIR defaults to
+``../shared/mocap/cmu``). For every run of ``scenarios/sim2real.yaml``, ``sim2real_mixed.yaml`` and both conditions
+of ``mocap.yaml`` (leave-one-out, cross-subject), the database is trained on what the pipeline trains it on
+(``pipeline.training_motions``) under each rule, and the test capture is recognised from its true joint-space
+features. Accuracy over all runs, then over the development demonstrations (the performer's calibration
+demonstrations, ``realism.calibration_split``: what settings are chosen on) and the report demonstrations
+apart; per class; and the classes answered for wrong ones. ``--procedural`` adds the procedural default
+scenario's development runs (seed 101, ``scenarios/dev_default.yaml``).
+
+Rules (``RULES``): ``group`` (the feature groups' floors alone, as before issue 24), ``human`` (the human floor
+at ``FLOOR_SCALE``, the default), ``human<s>`` (at scale ``s``), ``human-rates`` (the human floor on the rates and the base's velocities only), ``balanced`` (the human floor, and every class
+trained on as many demonstrations as the class with the fewest, taken round-robin over subjects),
+``offset-group`` / ``offset-human`` (sim2real only: per-class log-likelihood offsets per frame fitted on the
+development captures, ``fit_offsets``). One-class databases are cached by class, rule and training motions (and the
+whole training set, for a class with features none of its demonstrations measures: their population), so a
+leave-one-out database costs about one class's fit.
+"""
+
+import argparse
+import sys
+import time
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize
+from scipy.special import log_softmax
+
+from harness.engine import MotionDatabase, motion_features, recognize_features
+from harness.engine.features import ANGLES, measured_features
+from harness.engine.variance_floor import FLOOR_SCALE, HUMAN_FLOOR_PATH, group_floor, read_human_floor
+from harness.evaluation.pipeline import test_motion, training_identity, training_motions
+from harness.evaluation.runner import plan
+from harness.evaluation.scenario import load_scenario, resolve_capture
+from harness.motion.performer import CYCLIC
+from harness.motion.realism import calibration_split
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_DIR = ROOT.parent / "shared" / "mocap" / "cmu"
+SCENARIOS = {"sim2real": "sim2real.yaml", "mixed": "sim2real_mixed.yaml", "mocap": "mocap.yaml"}
+SCALES = (1.0, 2.0, 4.0, 8.0)
+
+
+def floor_at(scale: float) -> np.ndarray:
+    return np.maximum(group_floor(), scale * read_human_floor(HUMAN_FLOOR_PATH))
+
+
+def balanced(motions):
+    """Every class cut to the smallest class's number of demonstrations, taken round-robin over its subjects
+    (each subject's in their order)."""
+    by_class = defaultdict(list)
+    for m in motions:
+        by_class[m.label].append(m)
+    n = min(len(v) for v in by_class.values())
+    out = []
+    for ms in by_class.values():
+        queues = defaultdict(list)
+        for m in ms:
+            queues[m.subject].append(m)
+        order = [q[i] for i in range(max(map(len, queues.values()))) for q in queues.values() if i < len(q)]
+        out += order[:n]
+    return out
+
+
+def rates_only(scale: float) -> np.ndarray:
+    """The human floor on the angle rates and the base's velocities only; the angles keep the group floor."""
+    floor = floor_at(scale)
+    floor[ANGLES] = group_floor()[ANGLES]
+    return floor
+
+
+RULES = {"group": (group_floor, None), "human": (lambda: floor_at(FLOOR_SCALE), None),
+         "human-rates": (lambda: rates_only(FLOOR_SCALE), None),
+         "balanced": (lambda: floor_at(FLOOR_SCALE), balanced)} | {
+    f"human{s:g}": ((lambda s=s: floor_at(s)), None) for s in SCALES}
+
+
+class Databases:
+    """Databases of a rule from one-class fits, each made once."""
+
+    def __init__(self, rule: str):
+        self.floor, self.select = RULES[rule.removeprefix("offset-")]
+        self.floor = self.floor()
+        self.fits = {}
+
+    def __call__(self, training) -> MotionDatabase:
+        if self.select is not None:
+            training = self.select(training)
+        parts = []
+        for label in sorted({m.label for m in training}):
+            own = [m for m in training if m.label == label]
+            # The whole training set is the population of the features the class never measures (if any).
+            unmeasured = not np.any([measured_features(m) for m in own], axis=0).all()
+            key = (label, tuple(sorted(str(training_identity(m)) for m in own)),
+                   tuple(sorted(str(training_identity(m)) for m in training)) if unmeasured else ())
+            if key not in self.fits:
+                self.fits[key] = MotionDatabase(cyclic=CYCLIC, floor=self.floor).fit(own, population=training)
+            parts.append(self.fits[key])
+        return stack(parts)
+
+
+def stack(parts: list[MotionDatabase]) -> MotionDatabase:
+    """One database of the classes of one-class databases trained alike."""
+    first = parts[0]
+    db = MotionDatabase(first.n_states, first.cyclic, first.n_iter, first.mirrored, first.floor)
+    db.classes_ = np.concatenate([p.classes_ for p in parts])
+    db.cyclic_ = np.isin(db.classes_, list(db.cyclic))
+    for name in ("means_", "covars_", "transmat_", "startprob_"):
+        setattr(db, name, np.concatenate([getattr(p, name) for p in parts]))
+    db.fps_ = first.fps_
+    return db
+
+
+def log_likelihoods(db: MotionDatabase, motion) -> np.ndarray:
+    """``(C,)`` the recursion's final log posterior (uniform prior: the class log-likelihoods up to a constant)."""
+    post = recognize_features(db, motion_features(motion))[-1]
+    return np.log(np.maximum(post, 1e-300))
+
+
+def fit_offsets(scores: np.ndarray, frames: np.ndarray, labels: np.ndarray, classes) -> np.ndarray:
+    """Per-class offsets ``o`` (nats per frame, mean 0) that maximise the held-out class log-likelihood
+    ``sum_n log softmax_c(L_nc - o_c T_n)[y_n]`` (convex in ``o``)."""
+    y = np.array([list(classes).index(lbl) for lbl in labels])
+
+    def loss(o):
+        z = scores - np.outer(frames, o - o.mean())
+        return -log_softmax(z, axis=1)[np.arange(len(y)), y].sum()
+
+    o = minimize(loss, np.zeros(len(classes)), method="Powell").x
+    return o - o.mean()
+
+
+def scenario(name: str, capture_dir: str):
+    return resolve_capture(load_scenario(ROOT / "scenarios" / SCENARIOS[name]), capture_dir)
+
+
+def evaluate(scenario_name: str, rule: str, capture_dir: str, development: set[str]) -> list[dict]:
+    dbs = Databases(rule)
+    rows = []
+    for run in plan(scenario(scenario_name, capture_dir), "/nonexistent"):
+        motion = test_motion(run)
+        db = dbs(training_motions(run.config, motion))
+        rows.append({"condition": f"{scenario_name}/{run.condition_label}", "label": motion.label,
+                     "dev": motion.demo + motion.label in development, "classes": db.classes_,
+                     "scores": log_likelihoods(db, motion), "frames": motion.n_frames})
+    if rule.startswith("offset-"):
+        dev = [r for r in rows if r["dev"]]
+        o = fit_offsets(np.array([r["scores"] for r in dev]), np.array([r["frames"] for r in dev]),
+                        np.array([r["label"] for r in dev]), dev[0]["classes"])
+        print(f"  offsets (nats/frame): {dict(zip(dev[0]['classes'], np.round(o, 2)))}")
+        for r in rows:
+            r["scores"] = r["scores"] - o * r["frames"]
+    for r in rows:
+        r["answer"] = str(r["classes"][np.argmax(r["scores"])])
+    return rows
+
+
+def summary(rows: list[dict]) -> str:
+    acc = lambda rs: f"{100 * np.mean([r['answer'] == r['label'] for r in rs]):5.1f}% ({len(rs)})" if rs else "-"  # noqa: E731
+    per = defaultdict(list)
+    for r in rows:
+        per[r["label"]].append(r["answer"] == r["label"])
+    wrong = Counter(r["answer"] for r in rows if r["answer"] != r["label"])
+    return (f"all {acc(rows)}  development {acc([r for r in rows if r['dev']])}  report "
+            f"{acc([r for r in rows if not r['dev']])}\n      per class "
+            + " ".join(f"{c}:{sum(v)}/{len(v)}" for c, v in sorted(per.items()))
+            + "\n      answered when wrong: " + ", ".join(f"{c} {n}" for c, n in wrong.most_common(4)))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("directory", nargs="?", default=str(DEFAULT_DIR))
+    parser.add_argument("--rules", default="group,human", help="comma-separated, of: " + ", ".join(RULES)
+                        + ", offset-group, offset-human")
+    parser.add_argument("--scenarios", default="sim2real,mixed,mocap", help="of: " + ", ".join(SCENARIOS))
+    args = parser.parse_args()
+    # The capture scenario's training set without a test motion is every capture (retargeted once, cached).
+    captures = training_motions(scenario("mocap", args.directory), None)
+    development = {m.demo + m.label for m in calibration_split(captures)[0]}
+    for rule in args.rules.split(","):
+        for name in args.scenarios.split(","):
+            if rule.startswith("offset-") and name != "sim2real":
+                continue
+            t0 = time.perf_counter()
+            rows = evaluate(name, rule, args.directory, development)
+            for cond in dict.fromkeys(r["condition"] for r in rows):
+                print(f"{rule:10} {cond:28} {summary([r for r in rows if r['condition'] == cond])}")
+            print(f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
