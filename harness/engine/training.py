@@ -113,7 +113,10 @@ class _PrimitiveHMM(GaussianHMM):
 
     def _do_mstep(self, stats):
         means, covars, trans = self.means_.copy(), self._covars_.copy(), self.transmat_.copy()
-        super()._do_mstep(stats)            # start and transition probabilities (means and variances redone here)
+        # start and transition probabilities; its means and variances are redone below (a state no frame reaches
+        # divides zero by zero there, which the masked estimate replaces)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            super()._do_mstep(stats)
         w = stats["mask_post"]
         seen = w > _EMPTY_OCCUPANCY
         safe = np.where(seen, w, 1.0)
