@@ -19,13 +19,6 @@ from harness.errors import EngineError
 from harness.motion.performer import CLASSES as ALL_CLASSES, CYCLIC, perform, training_set
 
 
-@pytest.fixture(scope="module")
-def trained(body):
-    rng = np.random.default_rng(1)
-    train = [m for c in CLASSES for m in synthetic_demos(body, c, 4, rng)]
-    return MotionDatabase(n_states=6, cyclic=("march", "wave"), n_iter=5).fit(train)
-
-
 def _only(db: MotionDatabase, c: int) -> MotionDatabase:
     """A database holding primitive ``c`` alone (its arrays sliced)."""
     one = copy.copy(db)

@@ -5,9 +5,9 @@ frames before the first flows and before a track's first record; the given-pose 
 import numpy as np
 import pytest
 
-from engine_fixtures import CLASSES, synthetic_demos, synthetic_observation
+from engine_fixtures import synthetic_demos, synthetic_observation
 from harness import geometry
-from harness.engine import MotionDatabase, Tracker, TrackerConfig
+from harness.engine import Tracker, TrackerConfig
 from harness.engine.logsum import logsumexp
 from harness.engine.particle_filter import ParticleCloud, camera_pitch, upright_orientations
 from harness.engine.pose_source import GivenPose, ParticleTracks, mixture_pairs
@@ -16,13 +16,6 @@ from harness.engine.recognition import Recognizer
 from harness.engine.track import Track, prune_and_merge, turned
 from harness.engine.transform import PointDistributions
 from harness.observation import Observation
-
-
-@pytest.fixture(scope="module")
-def trained(body):
-    rng = np.random.default_rng(1)
-    train = [m for c in CLASSES for m in synthetic_demos(body, c, 4, rng)]
-    return MotionDatabase(n_states=6, cyclic=("march", "wave"), n_iter=5).fit(train)
 
 
 @pytest.fixture(scope="module")

@@ -26,13 +26,6 @@ from harness.observation import Observation, ObservationError
 from harness.pinhole import Intrinsics
 
 
-@pytest.fixture(scope="module")
-def trained(body):
-    rng = np.random.default_rng(1)
-    train = [m for c in CLASSES for m in synthetic_demos(body, c, 4, rng)]
-    return MotionDatabase(n_states=6, cyclic=("march", "wave"), n_iter=5).fit(train)
-
-
 def test_the_twin_is_the_depth_reflection_of_the_mirrored_body(body, rng):
     """S R S_b with the body's left/right mirror: every joint of the mirrored body lands on the depth
     reflection (through the pelvis plane) of its partner joint, which orthographic projection cannot tell."""

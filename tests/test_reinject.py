@@ -6,18 +6,11 @@ the same seed gives the same newcomers."""
 import numpy as np
 import pytest
 
-from engine_fixtures import CLASSES, synthetic_demos, synthetic_observation
+from engine_fixtures import synthetic_demos, synthetic_observation
 from harness import geometry
-from harness.engine import MotionDatabase, Tracker, TrackerConfig
+from harness.engine import Tracker, TrackerConfig
 from harness.engine.frame import observation_frames
 from harness.engine.track import Alternative, alternatives, new_recognizer, turned, twin
-
-
-@pytest.fixture(scope="module")
-def trained(body):
-    rng = np.random.default_rng(1)
-    train = [m for c in CLASSES for m in synthetic_demos(body, c, 4, rng)]
-    return MotionDatabase(n_states=6, cyclic=("march", "wave"), n_iter=5).fit(train)
 
 
 @pytest.fixture(scope="module")

@@ -5,18 +5,11 @@ computed from scratch; the reversed chains' dwell and direction; the backward pa
 import numpy as np
 import pytest
 
-from engine_fixtures import CLASSES, synthetic_demos, synthetic_observation
-from harness.engine import MotionDatabase, Tracker, TrackerConfig
+from engine_fixtures import synthetic_demos, synthetic_observation
+from harness.engine import Tracker, TrackerConfig
 from harness.engine.database import left_to_right
 from harness.engine.model import EngineModel
 from harness.engine.reverse import reversed_database, reversed_flows, reversed_model, reversed_start, reversed_transitions
-
-
-@pytest.fixture(scope="module")
-def trained(body):
-    rng = np.random.default_rng(1)
-    train = [m for c in CLASSES for m in synthetic_demos(body, c, 4, rng)]
-    return MotionDatabase(n_states=6, cyclic=("march", "wave"), n_iter=5).fit(train)
 
 
 def test_reversed_flows_pair_each_position_with_the_velocity_of_the_interval_it_ends():
