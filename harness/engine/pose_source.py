@@ -106,9 +106,10 @@ class ParticleTracks:
 
     @property
     def memory(self) -> int:
-        """Snapshots each track keeps: the window re-injection replays, and the one before it."""
+        """Snapshots each track keeps: the window re-injection replays, and the one before it (none without
+        re-injection)."""
         cfg = self.scorer.config
-        return cfg.reinject_window + 1 if cfg.reinject_every else 1
+        return cfg.reinject_window + 1 if cfg.reinject_every else 0
 
     def known_pose(self, frame: Frame) -> None:
         return None

@@ -34,7 +34,6 @@ class Recognizer:
         start = (1.0 - start_spread) * db.startprob_ + start_spread / K
         with np.errstate(divide="ignore"):
             self._log_start = np.log(start) - np.log(C)
-            self._log_trans = np.log(db.transmat_)
         self._trans = np.asarray(db.transmat_, dtype=float)
         self._log_start_shape = self._log_start.copy()
         self._log_prune = np.log(prune) if prune > 0 else -np.inf

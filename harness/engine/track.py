@@ -117,12 +117,12 @@ class Track:
     log_evidence: tempered nats since the first frame with flows; pose: this frame's filter estimate
     ``(position (3,), quaternion (4,))`` and pose_std ``(3,)`` the position std recovery may use around it;
     recovery: what recovery found this frame (the next proposal is guided by it when it was refined);
-    history: the last ``memory`` snapshots (``Snapshot``), the first one from before the track's first frame
-    until the window passes it; parent: the id of the track it was re-injected from (None: spawned).
+    history: the last ``memory`` snapshots (``Snapshot``; none when ``memory`` is 0), the first one from before
+    the track's first frame until the window passes it; parent: the id of the track it was re-injected from (None: spawned).
     """
 
     def __init__(self, track_id: int, origin: str, recognizer: Recognizer, cloud: ParticleCloud | None = None, *,
-                 primitive: int | None = None, family: int | None = None, memory: int = 1,
+                 primitive: int | None = None, family: int | None = None, memory: int = 0,
                  log_evidence: float = 0.0, parent: int | None = None):
         self.id = int(track_id)
         self.origin = origin
@@ -135,8 +135,9 @@ class Track:
         self.pose: tuple[np.ndarray, np.ndarray] | None = None
         self.pose_std = np.zeros(3)
         self.recovery: Recovery | None = None
-        self.history: deque[Snapshot] = deque([Snapshot(None, None, copy.copy(recognizer), self.log_evidence)],
-                                              maxlen=max(int(memory), 1))
+        self.history: deque[Snapshot] = deque(maxlen=int(memory))
+        if memory:
+            self.history.append(Snapshot(None, None, copy.copy(recognizer), self.log_evidence))
 
     def __repr__(self) -> str:
         return f"Track({self.id}, {self.origin}, evidence {self.log_evidence:.1f})"
@@ -220,8 +221,10 @@ class Track:
         self.recovery = recovery
 
     def remember(self, index: int, pose: tuple[np.ndarray, np.ndarray]) -> None:
-        """Keep this frame's snapshot (after recognition at ``pose``): what re-injection replays from."""
-        self.history.append(Snapshot(index, pose, copy.copy(self.recognizer), self.log_evidence))
+        """Keep this frame's snapshot (after recognition at ``pose``): what re-injection replays from (nothing
+        when the track keeps no history)."""
+        if self.history.maxlen:
+            self.history.append(Snapshot(index, pose, copy.copy(self.recognizer), self.log_evidence))
 
     def record(self) -> TrackRecord:
         """What the track is at the end of this frame."""
