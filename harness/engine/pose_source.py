@@ -350,10 +350,11 @@ def screen(scorer: Scorer, frames: dict[int, Frame], histories: list, alternativ
         frame = frames[index]
         if not frame.has_flows:
             continue
-        poses = [alt.apply(owners[i][1].pose[0][None], owners[i][1].pose[1][None], frame.gravity)
-                 for i in members for alt in alternatives]
-        img = scorer.image(frame, geometry.to_matrix(np.concatenate([q for _, q in poses])),
-                           np.concatenate([p for p, _ in poses]), blobs, np.repeat(members, A))
+        pos = np.array([owners[i][1].pose[0] for i in members])
+        quat = np.array([owners[i][1].pose[1] for i in members])
+        moved = [alt.apply(pos, quat, frame.gravity) for alt in alternatives]     # member-major below
+        img = scorer.image(frame, geometry.to_matrix(np.stack([q for _, q in moved], axis=1).reshape(-1, 4)),
+                           np.stack([p for p, _ in moved], axis=1).reshape(-1, 3), blobs, np.repeat(members, A))
         ll = scorer.frame_log_likelihood(frame, img, cfg.n_eff_recognition).reshape(len(members), A)
         for i, row in zip(members, ll):
             out[owners[i][0]] += row
