@@ -48,6 +48,25 @@ def test_a_restricted_belief_is_the_recursion_of_its_primitive_alone(trained):
         Recognizer(trained).restrict([])
 
 
+def test_tracks_share_the_particles_up_to_the_cap(body, trained):
+    """Every track holds ``particles // tracks`` particles, at most ``track_particles_max``: from the spawn on,
+    and in every frame's proposal (the cap binds once few tracks are left)."""
+    m = synthetic_demos(body, "march", 1, np.random.default_rng(3), seconds=1.0)[0]
+    obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))
+    for particles, cap in ((90, 1000), (90, 4)):
+        cfg = TrackerConfig(particles=particles, track_particles_max=cap, model_points=40, track_turns=(180.0,))
+        tracker = Tracker(trained, body, cfg)
+        tracker.reset(obs.intrinsics, obs.fps, np.random.default_rng(5))
+        sizes = []
+        for flows in obs.flows:
+            proposed = len(tracker.tracks)            # the tracks this frame's proposal shares the particles among
+            tracker.step(flows)
+            share = particles // (len(trained.classes_) * cfg.n_tracks) if not proposed else particles // proposed
+            sizes += [(len(track.cloud), min(share, cap)) for track in tracker.tracks]
+        assert sizes and all(n == expected for n, expected in sizes)
+        assert max(n for n, _ in sizes) <= cap
+
+
 def test_each_primitive_spawns_its_own_set_of_tracks_from_its_own_weighing(body, trained):
     """With ``class_tracks`` the first frame spawns ``n_tracks`` tracks per primitive, each believing only its
     primitive; a primitive's lead is the heaviest orientation mode of the first cloud weighed under that

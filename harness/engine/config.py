@@ -13,9 +13,10 @@ class TrackerConfig:
     Where a value was chosen by measurement, the comment says on what."""
 
     particles: int = 500                     # in total over all tracks (200 before the tracks per primitive)
-    track_particles_max: int = 1_000_000     # ... and at most this many per track (the survivors share them)
-                                             # 150: the same recognition, smoothed heading +2.4 deg on 160
-                                             # development runs (docs/engine.md)
+    track_particles_max: int = 50            # ... and at most this many per track (it binds once ten or fewer
+                                             # are left; 240 development runs, seeds 101-103, against no cap:
+                                             # `full` 0 fixed, 1 lost, heading -0.5 deg, smoothed 5 / 1 and
+                                             # -6.0 deg, 36% less time; 25: 4 / 4; docs/engine.md)
     model_points: int = 150                  # the engine's own surface sample
     model_seed: int = 7                      # ... seeded independently of the markers
     init_distance: tuple[float, float] = (2.0, 8.0)    # prior range of the subject's distance

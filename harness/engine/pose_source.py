@@ -126,7 +126,7 @@ class ParticleTracks:
             wide.reweight(logsumexp(per_class + log_prior[:, None], axis=0))
             return self.spawn(wide, frame.gravity)
         C = len(per_class)
-        n_each = max(1, cfg.particles // (C * cfg.n_tracks))
+        n_each = min(max(1, cfg.particles // (C * cfg.n_tracks)), cfg.track_particles_max)
         tracks = []
         for c in range(C):
             own = ParticleCloud(wide.positions, wide.quats, wide.log_weights.copy())
@@ -185,7 +185,8 @@ class ParticleTracks:
         spawn = [("lead", lead)] + [(f"turn{a:+g}", turned(lead[None], np.deg2rad(a))[0]) for a in cfg.track_turns]
         if cfg.twin_track:
             spawn.append(("twin", twin(lead[None], gravity)[0]))
-        n_each = n_each if n_each is not None else max(1, cfg.particles // (len(spawn) * len(cfg.spawn_depths)))
+        if n_each is None:
+            n_each = min(max(1, cfg.particles // (len(spawn) * len(cfg.spawn_depths))), cfg.track_particles_max)
         prefix = "" if primitive is None else f"{self.scorer.model.db.classes_[primitive]}/"
         tracks = []
         for origin, centre in spawn:
