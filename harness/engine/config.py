@@ -13,8 +13,9 @@ class TrackerConfig:
     Where a value was chosen by measurement, the comment says on what."""
 
     particles: int = 500                     # in total over all tracks (200 before the tracks per primitive)
-    track_particles_max: int = 50            # ... and at most this many per track (it binds once ten or fewer
-                                             # are left; 240 development runs, seeds 101-103, against no cap:
+    track_particles_max: int = 50            # ... and at most this many per track
+                                             # (it binds once ten or fewer are left; 240 development runs, seeds
+                                             # 101-103, against no cap:
                                              # `full` 0 fixed, 1 lost, heading -0.5 deg, smoothed 5 / 1 and
                                              # -6.0 deg, 36% less time; 25: 4 / 4; docs/engine.md)
     model_points: int = 150                  # the engine's own surface sample
