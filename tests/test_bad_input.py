@@ -723,18 +723,17 @@ CORPUS_23 = {"paths": PATH_CASES, "sweeps": SWEEP_CASES, "engine": ENGINE_CASES,
 @pytest.mark.parametrize("group, case", [(g, c) for g, cases in CORPUS_23.items() for c in sorted(cases)],
                          ids=lambda v: v)
 def test_bad_input_is_refused_at_load(group, case, tmp_path, capsys, database_file, monkeypatch):
-    import time
-
     from harness.evaluation import pipeline
     from fakes import fake_run
 
     # Nothing here may reach a run; if one did, it would be this stand-in (and the tree check would fail).
     monkeypatch.setattr(pipeline, "run_one", fake_run)
     argv, named = CORPUS_23[group][case](tmp_path, {"database": database_file})
-    t0 = time.perf_counter()
     err = _check(argv, named, tmp_path, capsys)
     if case == "sweep_20000_values":
-        assert time.perf_counter() - t0 < 2.0, "a 20,000-value sweep must be refused within 2 s"
+        # Refused by the sweep's shape check, before any of its values is validated (a wall-clock bound here
+        # failed on a loaded machine; the shape check is what keeps the refusal immediate).
+        assert "20000 values, more than" in err, err
     assert "root:x" not in err                   # no file's content is ever printed
 
 
