@@ -100,6 +100,25 @@ def print_profile(profiler: cProfile.Profile, frames: int) -> None:
     print(f"  {'Python and numpy':28s} {1e3 * rest / frames:6.1f}  {100 * rest / whole:4.0f}%")
 
 
+def add_phase_times(records: list, phases: dict, many: int = 10) -> None:
+    """Add a run's causal frame times (``FrameRecord.ms``) to ``phases`` (name -> list of ms): the start (the
+    first frame with tracks), the frames with more than ``many`` tracks, and the rest. The start and the frames
+    of many tracks (every primitive's turns and twin alive) are where a clip's time goes."""
+    tracked = [r for r in records if r.tracks]
+    for i, r in enumerate(tracked):
+        name = "the start" if i == 0 else (f"more than {many} tracks" if len(r.tracks) > many else
+                                             f"{many} or fewer tracks")
+        phases.setdefault(name, []).append(r.ms)
+
+
+def print_phase_times(phases: dict) -> None:
+    whole = sum(sum(v) for v in phases.values())
+    print("\nthis engine's causal time by phase of a clip:")
+    for name, times in phases.items():
+        print(f"  {name:24s} {len(times):4d} frames  {np.mean(times):6.1f} ms/frame  {100 * sum(times) / whole:4.0f}% "
+              "of the time")
+
+
 def _knows_mirrored(commit: str) -> bool:
     """Whether the engine at ``commit`` reads both-handed database files."""
     done = subprocess.run(["git", "-C", str(ROOT), "grep", "-q", "mirrored", commit, "--", "harness/engine/database.py"],
@@ -152,7 +171,7 @@ def main() -> None:
         profiler = cProfile.Profile() if args.profile else None
         if profiler is not None:
             profiler.enable()
-        total, causal, frames, parts = 0.0, 0.0, 0, {}
+        total, causal, frames, parts, phases = 0.0, 0.0, 0, {}, {}
         for c, obs in zip(args.classes, clips[1:]):
             t1 = time.perf_counter()
             est = tracker.run(obs)
@@ -161,6 +180,7 @@ def main() -> None:
             frames += len(obs)
             for k, v in est.timing.items():
                 parts[k] = parts.get(k, 0.0) + v * len(obs)
+            add_phase_times(tracker.records, phases)
             print(f"{c:13s} {len(obs)} frames, {obs.counts[1:].mean():.0f} flows/frame, tracks "
                   f"{est.n_tracks.max()} -> {est.n_tracks[-1]}: {1e3 * (time.perf_counter() - t1) / len(obs):.1f} ms/frame")
         if profiler is not None:
@@ -171,6 +191,7 @@ def main() -> None:
               f"stage: " + ", ".join(f"{k} {v / frames:.1f} ms" for k, v in parts.items()))
         print(f"this engine, with the offline estimate (backward pass, evaluation only): {whole:.1f} ms/frame "
               f"({whole - ms:.1f} of it offline)")
+        print_phase_times(phases)
         if args.reference != "none":
             ref = _reference_times(args.reference, db_path, obs_paths, args.particles, args.points)
             ref_ms = 1e3 * sum(t for t, _ in ref) / sum(n for _, n in ref)
