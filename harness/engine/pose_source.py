@@ -114,6 +114,12 @@ class ParticleTracks:
     def known_pose(self, frame: Frame) -> None:
         return None
 
+    def share(self, n_tracks: int) -> int:
+        """Particles per track when ``n_tracks`` share them: an equal share of ``particles`` (at least one), at
+        most ``track_particles_max``."""
+        cfg = self.scorer.config
+        return min(max(1, cfg.particles // n_tracks), cfg.track_particles_max)
+
     # --- the first frame ------------------------------------------------------------------------
 
     def start(self, frame: Frame) -> list[Track]:
@@ -126,7 +132,7 @@ class ParticleTracks:
             wide.reweight(logsumexp(per_class + log_prior[:, None], axis=0))
             return self.spawn(wide, frame.gravity)
         C = len(per_class)
-        n_each = min(max(1, cfg.particles // (C * cfg.n_tracks)), cfg.track_particles_max)
+        n_each = self.share(C * cfg.n_tracks)
         tracks = []
         for c in range(C):
             own = ParticleCloud(wide.positions, wide.quats, wide.log_weights.copy())
@@ -186,7 +192,7 @@ class ParticleTracks:
         if cfg.twin_track:
             spawn.append(("twin", twin(lead[None], gravity)[0]))
         if n_each is None:
-            n_each = min(max(1, cfg.particles // (len(spawn) * len(cfg.spawn_depths))), cfg.track_particles_max)
+            n_each = self.share(len(spawn) * len(cfg.spawn_depths))
         prefix = "" if primitive is None else f"{self.scorer.model.db.classes_[primitive]}/"
         tracks = []
         for origin, centre in spawn:
@@ -224,7 +230,7 @@ class ParticleTracks:
         """Move every track's particles: the tracks recovery guides one by one (``Track.move``), the others in
         one bootstrap pass (``propose_many``), each at its belief's base velocity."""
         cfg = self.scorer.config
-        n_each = min(cfg.particles // len(tracks), cfg.track_particles_max)
+        n_each = self.share(len(tracks))
         noise = self.process_noise(frame.gravity)
         dists = self.scorer.model.dists
         free = []
