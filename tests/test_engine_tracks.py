@@ -17,7 +17,7 @@ from harness.engine.particle_filter import camera_pitch, level_world, upright_or
 from harness.engine.track import turned, twin
 from harness.engine.estimate import smooth_trajectory
 from harness.engine.likelihood import FlowModel
-from harness.engine.scoring import Scorer, floor_log_prior, path_evidence
+from harness.engine.scoring import Scorer, floor_log_prior, path_class_evidence, path_evidence, path_recognition
 from harness.engine.transform import (_ALL_PAIRS, JointGaussians, occlusion_work, patch_std, self_occlusion,
                                       state_point_distributions, to_image)
 from harness.errors import EngineError
@@ -87,6 +87,22 @@ def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trai
         first = False
     np.testing.assert_allclose(got, total, rtol=1e-9, atol=1e-9)
     assert got.sum() < 0 and np.count_nonzero(got) == len(obs) - 1
+
+
+def test_class_evidence_along_a_path_splits_the_recursion_over_all_classes(body, trained):
+    """A primitive's evidence along a path (its own recursion) against the one recursion over every primitive:
+    without pruning the primitives do not interact, so ``log p(y | c) = log p(y) + log P(c | y) - log P(c)``
+    with the uniform class prior (pruned states take the frame's worst emission, which the recursion over all
+    primitives takes over all of them). Fails if a primitive's recursion saw the others' states."""
+    cfg = TrackerConfig(model_points=40, prune=1e-300)
+    model = EngineModel.build(trained, body, cfg.model_points, cfg.model_seed)
+    m = synthetic_demos(body, "wave", 1, np.random.default_rng(3), seconds=0.5)[0]
+    obs, pos, quat = synthetic_observation(body, m, np.random.default_rng(4))
+    got = path_class_evidence(model, cfg, obs, pos, quat)
+    per_frame, posterior = path_recognition(model, cfg, obs, pos, quat)
+    expected = per_frame.sum() + np.log(posterior[-1]) + np.log(len(CLASSES))
+    np.testing.assert_allclose(got, expected, rtol=1e-9)
+    assert np.ptp(got) > 1.0        # the classes differ, so the split is not trivially the total
 
 
 @pytest.mark.parametrize("label", [

@@ -5,7 +5,7 @@ question of one frame: project these distributions at these poses (with the body
 camera's own motion), score the flows under them (with the open region's held points: negative evidence),
 temper a frame's sum, or fold a frame into a recognizer at a pose. ``path_recognition`` is what a track that
 followed a given pose path would gather (its evidence, ``path_evidence``, and its class posteriors);
-``floor_log_prior`` the camera prior's floor term.
+``path_class_evidence`` the same per primitive; ``floor_log_prior`` the camera prior's floor term.
 """
 
 from __future__ import annotations
@@ -135,3 +135,24 @@ def path_evidence(model: EngineModel, config: TrackerConfig, obs: Observation, p
     """``(T,)`` per-frame evidence ``log p(y_t | y_<t, path)`` of a given base pose path (``path_recognition``):
     what a track that followed exactly this path would accumulate."""
     return path_recognition(model, config, obs, positions, quats)[0]
+
+
+def path_class_evidence(model: EngineModel, config: TrackerConfig, obs: Observation, positions: np.ndarray,
+                        quats: np.ndarray) -> np.ndarray:
+    """``(C,)`` the evidence each primitive gathers along a given base pose path ``(T, 3)``, ``(T, 4)``: what a
+    track that believed only that primitive (``Recognizer.restrict``, as the engine's tracks per primitive do)
+    and followed exactly this path would have at the end, comparable with a track's ``log_evidence``."""
+    scorer = Scorer(model, config)
+    C = model.n_classes
+    recs = [Recognizer(model.db, config.start_spread, config.prune).restrict([c]) for c in range(C)]
+    total = np.zeros(C)
+    started = False
+    for frame in observation_frames(obs, config):
+        t = frame.index
+        if started or frame.has_flows:
+            for rec in recs:
+                rec.predict()
+            started = True
+            total += scorer.recognise(frame, recs, np.repeat(positions[t][None], C, axis=0),
+                                      np.repeat(quats[t][None], C, axis=0))
+    return total

@@ -1,0 +1,105 @@
+"""Why the engine loses a run: did its tracks miss a better path (search), or does a wrong class explain the
+flows better than the true class on the true path (model)?
+
+    MUJOCO_GL=egl python benchmarks/loss_causes.py [--scenario scenarios/default.yaml] [--seed S ...]
+        [--amount 0.0 0.4] [--limit N] [--class wave ...] [--jobs 2] [--set KEY=VALUE ...]
+
+For every selected run the engine tracks the clip (its causal pass); the winner is the final track with the
+most evidence, and the causal answer is the class posterior's argmax. Along the true baselink path, every
+primitive's evidence is what a track of that primitive following the truth would gather
+(``scoring.path_class_evidence``, the same evidence a track accumulates). A lost run is
+
+- a **search** failure when the true class along the true path has more evidence than the winner: a better
+  explanation existed and the tracks did not find it (a wider search, a better start, could fix it);
+- a **model** failure otherwise: the winner's own path explains the flows better than the truth does under the
+  true class, so no search can fix it; the likelihood, the tempering or the database must change.
+
+Per class, the **pose freedom** is the evidence of the class's best final track minus that class along the true
+path: what tracking the pose (fitted to the flows frame by frame) is worth to the class. A class that gains
+more from it than the true class wins without being right. ``--seed`` replaces the scenario's seed
+(development seeds for choices); ``--class`` keeps the runs of those test classes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+
+import numpy as np
+
+import dev_runs
+
+
+def _one(job) -> dict:
+    run, overrides = job
+    from harness.engine.scoring import path_class_evidence
+    from harness.evaluation import pipeline
+
+    inputs = pipeline.run_inputs(run)
+    tracker = dev_runs.tracker_for(inputs, overrides)
+    est = tracker.run(inputs.obs)
+    classes = list(tracker.model.db.classes_)
+    final = tracker.records[-1].tracks
+    class_of = [classes[int(np.argmax(t.joint_posterior.sum(axis=1)))] for t in final]
+    best_track = {c: max((t.log_evidence for t, k in zip(final, class_of) if k == c), default=np.nan) for c in classes}
+    winner = int(np.argmax([t.log_evidence for t in final]))
+    along_truth = path_class_evidence(tracker.model, tracker.config, inputs.obs, inputs.truth.base_pos_cam,
+                                      inputs.truth.base_quat_cam)
+    return {"key": run.key, "seed": run.config.seed, "condition": run.condition_label, "class": run.test_class,
+            "answer": classes[int(np.argmax(est.class_posterior[-1]))], "winner_class": class_of[winner],
+            "winner": final[winner].log_evidence, "truth": dict(zip(classes, along_truth)), "best_track": best_track}
+
+
+def _median(values) -> str:
+    values = [v for v in values if np.isfinite(v)]
+    return f"{np.median(values):6.1f} ({len(values):3d})" if values else "     -      "
+
+
+def main() -> None:
+    from harness.engine.config import settings_from_strings
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    dev_runs.add_arguments(ap)
+    ap.add_argument("--class", dest="classes", nargs="*", default=None, help="only runs of these test classes")
+    args = ap.parse_args()
+    runs = [r for r in dev_runs.selected(args, pick=np.random.default_rng(0))
+            if args.classes is None or r.test_class in args.classes]
+    if not runs:
+        raise SystemExit("no runs selected (check --amount, --class and the scenario's classes)")
+    overrides = settings_from_strings(args.set)
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
+        rows = list(pool.map(_one, [(r, overrides) for r in runs]))
+
+    lost = [r for r in rows if r["answer"] != r["class"]]
+    for r in lost:
+        r["search"] = r["truth"][r["class"]] > r["winner"]
+    print(f"{'run':22s} {'seed':>5s} {'condition':22s} {'class':>12s} {'answer':>12s} {'winner':>12s} "
+          f"{'truth-winner':>12s} {'own track-winner':>16s}   (tempered nats)")
+    for r in lost:
+        print(f"{r['key']:22s} {r['seed']:5d} {r['condition']:22s} {r['class']:>12s} {r['answer']:>12s} "
+              f"{r['winner_class']:>12s} {r['truth'][r['class']] - r['winner']:12.1f} "
+              f"{r['best_track'][r['class']] - r['winner']:16.1f}")
+    print("\nlost runs (causal): search failures (the true class on the true path beats the winner) / model failures")
+    for cond in dict.fromkeys(r["condition"] for r in rows):
+        sub = [r for r in lost if r["condition"] == cond]
+        n = sum(r["condition"] == cond for r in rows)
+        print(f"  {cond}: {len(sub)} of {n} lost; search {sum(r['search'] for r in sub)}, "
+              f"model {sum(not r['search'] for r in sub)}")
+    by_class = {c: [r for r in lost if r["class"] == c] for c in sorted({r["class"] for r in lost})}
+    print("  by true class: " + ", ".join(f"{c} {sum(r['search'] for r in rs)}/{sum(not r['search'] for r in rs)}"
+                                          for c, rs in by_class.items()))
+    print("\npose freedom: best final track minus the class along the true path, median (runs with a live track)")
+    classes = list(rows[0]["truth"])
+    print(f"  {'class':>12s} {'as the true class':>18s} {'as another class':>18s}")
+    for c in classes:
+        own = [r["best_track"][c] - r["truth"][c] for r in rows if r["class"] == c]
+        other = [r["best_track"][c] - r["truth"][c] for r in rows if r["class"] != c]
+        print(f"  {c:>12s} {_median(own):>18s} {_median(other):>18s}")
+    print(f"\n{len(rows)} runs, {len(lost)} lost, in {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
