@@ -16,8 +16,15 @@ primitive's evidence is what a track of that primitive following the truth would
 
 Per class, the **pose freedom** is the evidence of the class's best final track minus that class along the true
 path: what tracking the pose (fitted to the flows frame by frame) is worth to the class. A class that gains
-more from it than the true class wins without being right. ``--seed`` replaces the scenario's seed
-(development seeds for choices); ``--class`` keeps the runs of those test classes.
+more from it than the true class wins without being right.
+
+For each model failure whose winner kept its track id from the start (a re-injected track's first frames are its
+parent's), the gap between the winner's class on the winner's path and the true class on the true path is
+**split by body part**: each frame's tempered per-flow log-likelihoods, weighted by the states' posterior
+responsibilities (a linearisation of the frame's ``log sum_k alpha_k b_k``), summed over the flows of each part's
+markers (ground truth, for this diagnosis only; outlier rows apart). It tells which part of the body the
+winner explains better. ``--seed`` replaces the scenario's seed (development seeds for choices); ``--class``
+keeps the runs of those test classes.
 """
 
 from __future__ import annotations
@@ -30,6 +37,55 @@ from multiprocessing import get_context
 import numpy as np
 
 import dev_runs
+
+# Body parts, by the humanoid's segment names (the clavicles go with the trunk).
+PARTS = ("trunk", "left arm", "right arm", "left leg", "right leg", "outlier")
+_ARM = ("humerus", "radius", "wrist", "hand")
+_LEG = ("femur", "tibia", "foot", "toes")
+
+
+def part_of(segment: str) -> str:
+    side = {"l": "left", "r": "right"}.get(segment[0])
+    if side and segment[1:] in _ARM:
+        return f"{side} arm"
+    if side and segment[1:] in _LEG:
+        return f"{side} leg"
+    return "trunk"
+
+
+def evidence_by_flow(model, config, obs, positions, quats, primitive) -> list:
+    """Per frame, ``(M,)`` each flow's share of the evidence a track of ``primitive`` following the path gains:
+    the tempered per-flow log-likelihoods of the active states, weighted by their posterior responsibilities
+    after the frame (empty for a frame without flows)."""
+    from harness import geometry
+    from harness.engine.frame import observation_frames
+    from harness.engine.recognition import Recognizer
+    from harness.engine.scoring import Scorer
+
+    scorer = Scorer(model, config)
+    rec = Recognizer(model.db, config.start_spread, config.prune).restrict([primitive])
+    out, started = [], False
+    for frame in observation_frames(obs, config):
+        t = frame.index
+        if not (started or frame.has_flows):
+            out.append(np.zeros(0))
+            continue
+        rec.predict()
+        started = True
+        share = np.zeros(len(frame.flows))
+        if frame.has_flows:
+            active = np.flatnonzero(rec.active().ravel())
+            rot = np.repeat(geometry.to_matrix(quats[t])[None], len(active), axis=0)
+            img = scorer.image(frame, rot, np.repeat(positions[t][None], len(active), axis=0), model.dists, active)
+            per_flow = scorer.per_flow(frame, img)[:, :len(frame.flows)]
+            scale = min(len(frame.flows), config.n_eff_recognition) / len(frame.flows)
+            log_b = per_flow.sum(axis=1) * scale
+            w = np.log(rec.posterior.ravel()[active]) + log_b
+            w = np.exp(w - w.max())
+            share = (w / w.sum()) @ per_flow * scale
+        out.append(share)
+        scorer.recognise(frame, [rec], positions[t], quats[t])
+    return out
 
 
 def _one(job) -> dict:
@@ -47,9 +103,36 @@ def _one(job) -> dict:
     winner = int(np.argmax([t.log_evidence for t in final]))
     along_truth = path_class_evidence(tracker.model, tracker.config, inputs.obs, inputs.truth.base_pos_cam,
                                       inputs.truth.base_quat_cam)
-    return {"key": run.key, "seed": run.config.seed, "condition": run.condition_label, "class": run.test_class,
-            "answer": classes[int(np.argmax(est.class_posterior[-1]))], "winner_class": class_of[winner],
-            "winner": final[winner].log_evidence, "truth": dict(zip(classes, along_truth)), "best_track": best_track}
+    row = {"key": run.key, "seed": run.config.seed, "condition": run.condition_label, "class": run.test_class,
+           "answer": classes[int(np.argmax(est.class_posterior[-1]))], "winner_class": class_of[winner],
+           "winner": final[winner].log_evidence, "truth": dict(zip(classes, along_truth)), "best_track": best_track}
+    if row["answer"] != run.test_class:
+        row["by_part"] = _gap_by_part(tracker, inputs, final[winner].track_id, classes.index(class_of[winner]),
+                                      classes.index(run.test_class))
+    return row
+
+
+def _gap_by_part(tracker, inputs, track_id, winner_class, true_class) -> dict | None:
+    """The winner's class on its path minus the true class on the true path, split by body part (module
+    docstring); None when the winner's track id does not span the clip."""
+    truth = inputs.truth
+    pos, quat = truth.base_pos_cam.copy(), truth.base_quat_cam.copy()
+    first = next(r.index for r in tracker.records if r.tracks)
+    for r in tracker.records[first:]:
+        mine = [t for t in r.tracks if t.track_id == track_id]
+        if not mine:
+            return None
+        pos[r.index], quat[r.index] = mine[0].position, mine[0].quat
+    model, config = tracker.model, tracker.config
+    won = evidence_by_flow(model, config, inputs.obs, pos, quat, winner_class)
+    true = evidence_by_flow(model, config, inputs.obs, truth.base_pos_cam, truth.base_quat_cam, true_class)
+    body = inputs.body.model
+    segment = np.array([part_of(body.body(int(b)).name) for b in truth.markers.body] + ["outlier"])
+    gap = dict.fromkeys(PARTS, 0.0)
+    for a, b, ids in zip(won, true, truth.marker_ids):
+        for part, d in zip(segment[np.asarray(ids, dtype=int)], a - b):
+            gap[part] += float(d)
+    return gap
 
 
 def _median(values) -> str:
@@ -91,6 +174,13 @@ def main() -> None:
     by_class = {c: [r for r in lost if r["class"] == c] for c in sorted({r["class"] for r in lost})}
     print("  by true class: " + ", ".join(f"{c} {sum(r['search'] for r in rs)}/{sum(not r['search'] for r in rs)}"
                                           for c, rs in by_class.items()))
+    split = [r for r in lost if not r["search"] and r.get("by_part") is not None]
+    if split:
+        print(f"\nthe gap (winner's class on its path minus the true class on the true path) by body part, "
+              f"{len(split)} model failures whose winner spans the clip: median [quartiles], tempered nats")
+        for part in PARTS:
+            v = np.array([r["by_part"][part] for r in split])
+            print(f"  {part:>10s} {np.median(v):7.1f} [{np.percentile(v, 25):6.1f}, {np.percentile(v, 75):6.1f}]")
     print("\npose freedom: best final track minus the class along the true path, median (runs with a live track)")
     classes = list(rows[0]["truth"])
     print(f"  {'class':>12s} {'as the true class':>18s} {'as another class':>18s}")
