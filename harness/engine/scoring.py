@@ -115,19 +115,32 @@ def path_recognition(model: EngineModel, config: TrackerConfig, obs: Observation
     """The recognition of a track that followed exactly a given base pose path ``(T, 3)``, ``(T, 4)`` (camera
     frame): its per-frame evidence ``log p(y_t | y_<t, path)`` ``(T,)`` and class posteriors ``(T, C)`` (before
     the first flows, the uniform prior)."""
-    scorer = Scorer(model, config)
     rec = Recognizer(model.db, config.start_spread, config.prune)
     evidence = np.zeros(len(obs))
     posteriors = np.empty((len(obs), model.n_classes))
+    for t, gained in _along_path(model, config, obs, positions, quats, [rec]):
+        evidence[t] = gained[0]
+        posteriors[t] = rec.class_posterior
+    return evidence, posteriors
+
+
+def _along_path(model: EngineModel, config: TrackerConfig, obs: Observation, positions: np.ndarray,
+                quats: np.ndarray, recognizers: list[Recognizer]):
+    """Yields ``(t, gained)`` for every frame: the recognizers' normalisers ``(J,)`` after folding frame ``t`` in
+    at the path's pose (zeros before the first frame with flows, where a track has not started)."""
+    scorer = Scorer(model, config)
+    J = len(recognizers)
     started = False
     for frame in observation_frames(obs, config):
         t = frame.index
-        if started or frame.has_flows:
+        if not (started or frame.has_flows):
+            yield t, np.zeros(J)
+            continue
+        for rec in recognizers:
             rec.predict()       # a no-op before the first update
-            started = True
-            evidence[t] = scorer.recognise(frame, [rec], positions[t], quats[t])[0]
-        posteriors[t] = rec.class_posterior
-    return evidence, posteriors
+        started = True
+        yield t, scorer.recognise(frame, recognizers, np.repeat(positions[t][None], J, axis=0),
+                                  np.repeat(quats[t][None], J, axis=0))
 
 
 def path_evidence(model: EngineModel, config: TrackerConfig, obs: Observation, positions: np.ndarray,
@@ -142,17 +155,5 @@ def path_class_evidence(model: EngineModel, config: TrackerConfig, obs: Observat
     """``(C,)`` the evidence each primitive gathers along a given base pose path ``(T, 3)``, ``(T, 4)``: what a
     track that believed only that primitive (``Recognizer.restrict``, as the engine's tracks per primitive do)
     and followed exactly this path would have at the end, comparable with a track's ``log_evidence``."""
-    scorer = Scorer(model, config)
-    C = model.n_classes
-    recs = [Recognizer(model.db, config.start_spread, config.prune).restrict([c]) for c in range(C)]
-    total = np.zeros(C)
-    started = False
-    for frame in observation_frames(obs, config):
-        t = frame.index
-        if started or frame.has_flows:
-            for rec in recs:
-                rec.predict()
-            started = True
-            total += scorer.recognise(frame, recs, np.repeat(positions[t][None], C, axis=0),
-                                      np.repeat(quats[t][None], C, axis=0))
-    return total
+    recs = [Recognizer(model.db, config.start_spread, config.prune).restrict([c]) for c in range(model.n_classes)]
+    return sum(gained for _, gained in _along_path(model, config, obs, positions, quats, recs))
