@@ -56,15 +56,19 @@ class SettledStarts(ParticleTracks):
         return tracks
 
 
-def settled_starts(final_tracks: list[Track], n_classes: int) -> list[tuple[int, str, ParticleCloud]]:
+def settled_starts(final_tracks: list[Track], n_classes: int, live_only: bool = False
+                   ) -> list[tuple[int, str, ParticleCloud]]:
     """One start per primitive (``(primitive, origin, cloud)``): the cloud of its live final track with the most
-    evidence, or the leader's cloud for a primitive without a live track (module docstring)."""
+    evidence, or the leader's cloud for a primitive without a live track (module docstring); with ``live_only``,
+    only the primitives with a live track."""
     ranked = sorted(final_tracks, key=lambda t: -t.log_evidence)
     starts = []
     for c in range(n_classes):
         own = next((t for t in ranked if t.primitive == c), None)
-        starts.append((c, "end:" + own.origin.split("/")[-1], own.cloud) if own is not None
-                      else (c, "end:leader", ranked[0].cloud))
+        if own is not None:
+            starts.append((c, "end:" + own.origin.split("/")[-1], own.cloud))
+        elif not live_only:
+            starts.append((c, "end:leader", ranked[0].cloud))
     return starts
 
 

@@ -82,6 +82,7 @@ class TrackerConfig:
     smoothing_frames: float = 2.0            # std (frames) of the offline estimate's trajectory smoother
     backward_pass: bool = True               # the offline estimate re-tracks the clip backwards from the causal
                                              # pass's final poses (engine.backward; else the causal leader smoothed)
+    backward_live_only: bool = False         # ... only the primitives with a live track at the causal end
     offline_both_passes: bool = True         # ... and decides the class by both passes' final tracks (else the
                                              # backward pass's alone; together 12 fixed, 5 lost of 160
                                              # development runs, smoothed heading 40.5 -> 30.7 deg)

@@ -185,7 +185,8 @@ class Tracker:
         intr, fps, _ = self._sequence
         model = reversed_model(self.model)
         back = Tracker(model.db, model.body, replace(self.config, backward_pass=False), model=model)
-        source = SettledStarts(back.scorer, self.source.rng, settled_starts(self.tracks, model.n_classes))
+        source = SettledStarts(back.scorer, self.source.rng, settled_starts(self.tracks, model.n_classes,
+                                                                         self.config.backward_live_only))
         back.reset(intr, fps, source=source)
         flows = reversed_flows([f for f, _, _, _ in self._inputs])
         for s, f in enumerate(flows):
