@@ -1,18 +1,22 @@
 """Engine speed: ms per frame and its breakdown per stage, beside a reference engine measured in the same run.
 
-    MUJOCO_GL=egl python benchmarks/engine_speed.py [--reference COMMIT] [--classes walk kick ...]
+    MUJOCO_GL=egl python benchmarks/engine_speed.py [--reference COMMIT] [--repeats N] [--profile]
 
 10 primitives (6 demos each), each engine's own default number of particles (``--particles`` sets one for
 both), 100 markers, 150 model points, one process. The
 observations and the database are made once with this checkout and written to a temporary directory (one-sided
 for a reference from before the both-handed database, which knows one chain only); the engine
-of this checkout tracks them, then the engine of ``--reference`` (a git commit, checked out into a
-temporary worktree and run in a subprocess on the same files; default: the engine before issue 22's speed
-work). Machines differ in speed, so the ratio is the number to compare; the target is 60 frames per second
+of this checkout tracks them in this process (its stages and the phases of a clip), then this checkout and
+``--reference`` (a git commit, checked out into a temporary worktree; default: the engine before issue 22's
+speed work) each time the same files in subprocesses, ``--repeats`` times, alternating which goes first: the
+machine's load drifts by more than a small change is worth, and alternating spreads it over both. Machines
+differ in speed, so the ratio of the medians is the number to compare; the target is 60 frames per second
 (16.7 ms per frame) on one core and 2.5 times the reference's speed. This engine's causal loop (the stages of
 every frame, what a live camera needs) is timed apart from its offline estimate (the backward pass, for
 evaluation), which ``Tracker.run`` also makes. Numba kernels are compiled (and cached) before timing, for both
-engines.
+engines. ``--profile`` runs the clips once more under cProfile and splits the unprofiled time into the numba
+kernels (their time under the profiler, which adds little to a long call) and the Python around them (the
+rest: the profiler inflates Python's own time several-fold, so its share is not read from the profile).
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # The engine before the speed work of issue 22 (tracks per primitive, both-handed database, 500 particles).
 DEFAULT_REFERENCE = "e3ee26d"
 
-_REFERENCE_SCRIPT = """
+_TIMING_SCRIPT = """
 import json, sys, time
 import numpy as np
 from harness.body import BodyModel
@@ -44,38 +48,57 @@ from harness.engine import MotionDatabase, Tracker, TrackerConfig
 from harness.observation import Observation
 db = MotionDatabase.load(sys.argv[1])
 particles = {} if sys.argv[2] == "default" else {"particles": int(sys.argv[2])}
-tracker = Tracker(db, BodyModel.load(), TrackerConfig(model_points=int(sys.argv[3]), **particles),
-                  rng=np.random.default_rng(1))
+tracker = Tracker(db, BodyModel.load(), TrackerConfig(model_points=int(sys.argv[3]), **particles,
+                                                      **json.loads(sys.argv[4])), rng=np.random.default_rng(1))
 out = []
-for i, path in enumerate(sys.argv[4:]):
+for i, path in enumerate(sys.argv[5:]):
     obs = Observation.load(path)
     t0 = time.perf_counter()
     est = tracker.run(obs)
     if i:        # the first clip compiles the kernels
-        out.append([time.perf_counter() - t0, len(obs)])
+        causal = 1e-3 * sum(est.timing.values()) * len(obs) if getattr(est, "timing", None) else None
+        out.append([time.perf_counter() - t0, causal, len(obs)])
 print(json.dumps(out))
 """
 
 
-def _reference_times(commit: str, db_path: Path, obs_paths: list[Path], particles: int | None, points: int) -> list:
+def _times(tree: Path, db_path: Path, obs_paths: list[Path], particles: int | None, points: int,
+           settings: dict) -> tuple[float, float]:
+    """ms per frame of ``Tracker.run`` (both passes where the engine has two) and of its causal loop (the
+    whole run for an engine without per-stage timing) of the engine checked out in ``tree``, on the files, in a
+    subprocess, with engine ``settings``."""
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    done = subprocess.run([sys.executable, "-c", _TIMING_SCRIPT, str(db_path), str(particles or "default"), str(points),
+                           json.dumps(settings), *map(str, obs_paths)], cwd=tree, env=env, check=True, capture_output=True, text=True)
+    times = json.loads(done.stdout.strip().splitlines()[-1])
+    frames = sum(n for _, _, n in times)
+    return (1e3 * sum(t for t, _, _ in times) / frames,
+            1e3 * sum(t if c is None else c for t, c, _ in times) / frames)
+
+
+def side_by_side(commit: str, db_path: Path, obs_paths: list[Path], particles: int | None, points: int,
+                 repeats: int, settings: dict) -> tuple[list, list]:
+    """This checkout's (with engine ``settings``) and ``commit``'s (its defaults) ``(whole run, causal loop)`` ms
+    per frame, ``repeats`` times each, alternating which runs first."""
+    mine, theirs = [], []
     with tempfile.TemporaryDirectory() as tmp:
         tree = Path(tmp) / "reference"
         subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), commit], check=True,
                        capture_output=True)
         try:
-            env = dict(os.environ, PYTHONPATH=str(tree))
-            done = subprocess.run([sys.executable, "-c", _REFERENCE_SCRIPT, str(db_path), str(particles or "default"), str(points),
-                                   *map(str, obs_paths)], cwd=tree, env=env, check=True, capture_output=True,
-                                  text=True)
-            return json.loads(done.stdout.strip().splitlines()[-1])
+            for r in range(repeats):
+                order = [(ROOT, settings, mine), (tree, {}, theirs)]
+                for where, engine_settings, times in (order if r % 2 == 0 else order[::-1]):
+                    times.append(_times(where, db_path, obs_paths, particles, points, engine_settings))
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=True,
                            capture_output=True)
+    return mine, theirs
 
 
-def print_profile(profiler: cProfile.Profile, frames: int) -> None:
-    """Time per frame in the engine's numba kernels (each named), in MuJoCo's kinematics, and in everything else
-    (Python and the numpy calls it makes); the profiler's own overhead inflates the last share."""
+def print_profile(profiler: cProfile.Profile, frames: int, whole_ms: float) -> None:
+    """The unprofiled time per frame ``whole_ms`` split into the engine's numba kernels (each named, their time
+    under ``profiler``), MuJoCo's kinematics, and everything else (Python and the numpy calls it makes)."""
     import numba
     import harness.engine as engine
     kernels = {}
@@ -86,18 +109,17 @@ def print_profile(profiler: cProfile.Profile, frames: int) -> None:
                 code = obj.py_func.__code__
                 kernels[(code.co_filename, code.co_firstlineno, code.co_name)] = name
     stats = pstats.Stats(profiler).stats
-    whole = sum(s[2] for s in stats.values())
     split = {}
     for key, s in stats.items():
         if key in kernels:
             split[kernels[key]] = split.get(kernels[key], 0.0) + s[2]
         elif key[0] == "~" and "mujoco" in key[2]:
             split["MuJoCo kinematics"] = split.get("MuJoCo kinematics", 0.0) + s[2]
-    rest = whole - sum(split.values())
-    print(f"\nprofile (ms per frame, under cProfile: {1e3 * whole / frames:.1f} in all)")
+    rest = whole_ms - 1e3 * sum(split.values()) / frames
+    print(f"\nprofile (ms per frame of the unprofiled {whole_ms:.1f}, both passes)")
     for name, t in sorted(split.items(), key=lambda kv: -kv[1]):
-        print(f"  {name:28s} {1e3 * t / frames:6.1f}  {100 * t / whole:4.0f}%")
-    print(f"  {'Python and numpy':28s} {1e3 * rest / frames:6.1f}  {100 * rest / whole:4.0f}%")
+        print(f"  {name:28s} {1e3 * t / frames:6.1f}  {100 * 1e3 * t / frames / whole_ms:4.0f}%")
+    print(f"  {'Python and numpy':28s} {rest:6.1f}  {100 * rest / whole_ms:4.0f}%")
 
 
 def add_phase_times(records: list, phases: dict, many: int = 10) -> None:
@@ -141,6 +163,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=150)
     ap.add_argument("--reference", default=DEFAULT_REFERENCE, help="git commit of the reference engine "
                                                                    "('none' to skip it)")
+    ap.add_argument("--repeats", type=int, default=3, help="alternating runs of each engine for the ratio")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="engine settings of this engine")
     ap.add_argument("--profile", action="store_true", help="also split this engine's time into numba kernels, "
                                                             "MuJoCo and the Python (with numpy) around them")
@@ -163,14 +186,12 @@ def main() -> None:
             obs.save(obs_paths[-1])
         t0 = time.perf_counter()
         particles = {} if args.particles is None else {"particles": args.particles}
-        tracker = Tracker(db, body, TrackerConfig(model_points=args.points, **particles,
-                                                  **settings_from_strings(args.set)), rng=np.random.default_rng(1))
+        settings = settings_from_strings(args.set)
+        tracker = Tracker(db, body, TrackerConfig(model_points=args.points, **particles, **settings),
+                          rng=np.random.default_rng(1))
         print(f"database transform (once): {1e3 * (time.perf_counter() - t0):.0f} ms for "
               f"{db.means_.shape[0] * db.means_.shape[1]} states x {args.points} points")
         tracker.run(clips[0])
-        profiler = cProfile.Profile() if args.profile else None
-        if profiler is not None:
-            profiler.enable()
         total, causal, frames, parts, phases = 0.0, 0.0, 0, {}, {}
         for c, obs in zip(args.classes, clips[1:]):
             t1 = time.perf_counter()
@@ -183,21 +204,29 @@ def main() -> None:
             add_phase_times(tracker.records, phases)
             print(f"{c:13s} {len(obs)} frames, {obs.counts[1:].mean():.0f} flows/frame, tracks "
                   f"{est.n_tracks.max()} -> {est.n_tracks[-1]}: {1e3 * (time.perf_counter() - t1) / len(obs):.1f} ms/frame")
-        if profiler is not None:
-            profiler.disable()
-            print_profile(profiler, frames)
         ms, whole = 1e3 * causal / frames, 1e3 * total / frames
         print(f"\nthis engine, causal (the loop a live camera needs): {ms:.1f} ms/frame ({1e3 / ms:.0f} fps); per "
               f"stage: " + ", ".join(f"{k} {v / frames:.1f} ms" for k, v in parts.items()))
         print(f"this engine, with the offline estimate (backward pass, evaluation only): {whole:.1f} ms/frame "
               f"({whole - ms:.1f} of it offline)")
         print_phase_times(phases)
+        if args.profile:
+            profiler = cProfile.Profile()
+            profiler.enable()
+            for obs in clips[1:]:
+                tracker.run(obs)
+            profiler.disable()
+            print_profile(profiler, frames, whole)
         if args.reference != "none":
-            ref = _reference_times(args.reference, db_path, obs_paths, args.particles, args.points)
-            ref_ms = 1e3 * sum(t for t, _ in ref) / sum(n for _, n in ref)
-            print(f"reference engine ({args.reference}, whole run): {ref_ms:.1f} ms/frame ({1e3 / ref_ms:.0f} fps) on "
-                  f"the same clips; this engine's causal loop takes {ms / ref_ms:.2f}x its time per frame "
-                  f"({ref_ms / ms:.2f}x faster), with the offline pass {whole / ref_ms:.2f}x")
+            mine, ref = side_by_side(args.reference, db_path, obs_paths, args.particles, args.points, args.repeats,
+                                     settings)
+            (mine_ms, mine_causal), (ref_ms, ref_causal) = np.median(mine, axis=0), np.median(ref, axis=0)
+            print(f"\nside by side, in subprocesses, {args.repeats} alternating repeats, whole run (causal loop) "
+                  f"ms/frame:\n  this engine  " + ", ".join(f"{w:.1f} ({c:.1f})" for w, c in mine) +
+                  f"\n  {args.reference:12s} " + ", ".join(f"{w:.1f} ({c:.1f})" for w, c in ref))
+            print(f"medians: this engine {mine_ms:.1f} ({mine_causal:.1f}, {1e3 / mine_causal:.0f} fps), {args.reference} "
+                  f"{ref_ms:.1f} ({ref_causal:.1f}); against the reference's whole run, this engine's whole run (with the "
+                  f"offline pass) is {ref_ms / mine_ms:.2f}x faster and its causal loop {ref_ms / mine_causal:.2f}x")
 
 
 if __name__ == "__main__":

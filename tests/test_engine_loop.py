@@ -61,6 +61,31 @@ def test_batched_weighing_equals_a_loop_over_tracks_and_classes(body, trained, c
     assert pose.tolist() == [0, 1, 0, 1, 2, 3, 4] and state.tolist() == [0, 0, 1, 1, 2, 2, 2]
 
 
+def test_one_primitive_tracks_and_the_unrefined_recoveries_take_shortcuts_to_the_general_answers(body, trained,
+                                                                                                  clip):
+    """A track of one primitive has the one mixture term the general rule gives it, and the tracks recovery does
+    not refine get, from one batched product, the mean angles ``recover`` would give each (its prior mean
+    under the belief's most probable primitive)."""
+    from harness.engine.recovery import recover
+    obs, _, _ = clip
+    tracker = Tracker(trained, body, TrackerConfig(particles=60, model_points=40), rng=np.random.default_rng(2))
+    _stepped(tracker, obs, 4, rng=np.random.default_rng(2))
+    frame = tracker._frames.next(obs.flows[4])
+    ranked = sorted(tracker.tracks, key=lambda t: -t.log_evidence)[tracker.config.recover_tracks:]
+    assert len(ranked) >= 2 and all(t.primitive is not None for t in ranked)
+    for track in ranked:
+        pos, quat = track.pose
+        each = recover(tracker.scorer, frame, track.best_state_belief(), pos, geometry.to_matrix(quat),
+                       track.pose_std, refine=False)
+        np.testing.assert_allclose(track.recovery.angles, each.angles, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(track.recovery.rotation, each.rotation)
+        assert not track.recovery.refined
+        shortcut = track.class_mixtures(3, 0.95)
+        track.primitive, general = None, track.class_mixtures(3, 0.95)
+        np.testing.assert_array_equal(shortcut[0], general[0])
+        np.testing.assert_array_equal(shortcut[1], general[1])
+
+
 def _track(track_id, evidence, position, heading_deg):
     t = Track(track_id, "lead", None)
     t.log_evidence = evidence

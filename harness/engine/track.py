@@ -157,11 +157,15 @@ class Track:
 
         One moment-matched blob over every primitive is so wide early on that the particles cannot tell depth;
         a term per primitive keeps the shape of each."""
+        joint = np.where(self.recognizer.active(), self.recognizer.posterior, 0.0)
+        if self.primitive is not None:          # a belief in one primitive: one term (the general path's answer)
+            rows = np.zeros_like(joint)
+            rows[self.primitive] = joint[self.primitive]
+            return np.zeros(1), rows.reshape(1, -1)
         post = self.recognizer.class_posterior
         order = np.argsort(post)[::-1]
         k = min(max_classes, int(np.searchsorted(np.cumsum(post[order]), mass)) + 1)
         keep = order[:k]
-        joint = np.where(self.recognizer.active(), self.recognizer.posterior, 0.0)
         C, K = joint.shape
         rows = np.zeros((k, C, K))
         rows[np.arange(k), keep] = joint[keep]

@@ -36,7 +36,7 @@ from harness.engine.frame import Frame, Frames
 from harness.engine.model import EngineModel
 from harness.engine.pose_source import GivenPose, ParticleTracks, PoseSource
 from harness.engine.records import FrameRecord, causal_estimate, offline_estimate
-from harness.engine.recovery import recover
+from harness.engine.recovery import Recovery, mean_angles, recover
 from harness.engine.reverse import reversed_flows, reversed_model
 from harness.engine.scoring import Scorer
 from harness.engine.track import Track
@@ -160,11 +160,17 @@ class Tracker:
         """Recovery for the ``recover_tracks`` tracks with the most evidence; the others keep their belief's
         mean angles at their filter estimate this frame (and propose without a guide next frame)."""
         ranked = sorted(self.tracks, key=lambda t: -t.log_evidence)
-        for rank, track in enumerate(ranked):
+        refined, rest = ranked[:self.config.recover_tracks], ranked[self.config.recover_tracks:]
+        for track in refined:
             pos, quat = track.pose
             track.recovered(recover(self.scorer, frame, track.best_state_belief(), pos, geometry.to_matrix(quat),
-                                    np.maximum(track.pose_std, 1e-6), refine=rank < self.config.recover_tracks,
-                                    fix_pose=self.source.fixed))
+                                    np.maximum(track.pose_std, 1e-6), fix_pose=self.source.fixed))
+        if rest:
+            # The others' mean angles in one product: with dozens of tracks early on, a call each cost more.
+            angles = mean_angles(self.model, [t.recognizer for t in rest])
+            rotations = geometry.to_matrix(np.array([t.pose[1] for t in rest]))
+            for track, theta, rot in zip(rest, angles, rotations):
+                track.recovered(Recovery(theta, track.pose[0], rot, refined=False))
 
     def result(self) -> Estimate:
         """The sequence's causal estimate, with its offline (hindsight) estimate as ``offline``."""
