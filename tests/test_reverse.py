@@ -63,3 +63,22 @@ def test_the_backward_pass_is_repeatable_and_covers_every_frame(body, trained):
     np.testing.assert_array_equal(one.class_posterior, two.class_posterior)
     assert one.qpos.shape == (len(obs), 57) and np.isfinite(one.qpos).all()
     np.testing.assert_allclose(one.class_posterior, np.repeat(one.class_posterior[:1], len(obs), axis=0))
+
+
+def test_the_backward_starts_are_each_primitives_best_final_cloud_or_the_leaders_and_live_only_drops_the_latter():
+    from harness.engine.backward import settled_starts
+    from harness.engine.particle_filter import ParticleCloud
+    from harness.engine.track import Track
+
+    def track(i, primitive, evidence):
+        cloud = ParticleCloud(np.full((2, 3), float(i)), np.tile([1.0, 0, 0, 0], (2, 1)), np.log([0.5, 0.5]))
+        return Track(i, f"p{primitive}/lead", None, cloud, primitive=primitive, log_evidence=evidence)
+
+    final = [track(0, 2, -50.0), track(1, 0, -10.0), track(2, 2, -20.0)]
+    starts = settled_starts(final, 4)
+    assert [(c, origin) for c, origin, _ in starts] == [(0, "end:lead"), (1, "end:leader"), (2, "end:lead"),
+                                                         (3, "end:leader")]
+    assert starts[0][2] is final[1].cloud and starts[1][2] is final[1].cloud     # the leader's cloud
+    assert starts[2][2] is final[2].cloud                                       # primitive 2's best, not its first
+    assert [(c, cloud) for c, _, cloud in settled_starts(final, 4, live_only=True)] == [(0, final[1].cloud),
+                                                                                        (2, final[2].cloud)]

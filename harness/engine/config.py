@@ -44,7 +44,8 @@ class TrackerConfig:
                                              # of 160)
     n_eff_filter: float = 4.0                # tempering: a frame counts as at most this many flows (dev seeds)
     n_eff_recognition: float = 3.0           # ... for the recognition and the evidence (dev seeds; 6: 77%
-                                             # against 90% on 60 development runs)
+                                             # against 90% on 60 development runs; on 240 runs of seeds
+                                             # 101-103, 2: 14 fixed / 11 lost, 4.5: 8 / 18)
     start_spread: float = 0.05               # start probability spread over all states
     prune: float = 1e-4                      # states below this times their primitive's best are not scored
     weigh_classes: int = 3                   # particles are weighed under at most this many primitives ...
@@ -83,6 +84,8 @@ class TrackerConfig:
     backward_pass: bool = True               # the offline estimate re-tracks the clip backwards from the causal
                                              # pass's final poses (engine.backward; else the causal leader smoothed)
     backward_live_only: bool = False         # ... only the primitives with a live track at the causal end
+                                             # (half the backward pass's time; smoothed heading +4.1 deg,
+                                             # 240 development runs: docs/engine.md, Speed)
     offline_both_passes: bool = True         # ... and decides the class by both passes' final tracks (else the
                                              # backward pass's alone; together 12 fixed, 5 lost of 160
                                              # development runs, smoothed heading 40.5 -> 30.7 deg)
