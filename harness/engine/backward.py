@@ -10,6 +10,8 @@ the causal pass ended with:
   evidence), the others from the causal leader's final cloud (the body's settled pose, whatever the primitive);
 - each start also spawns its twin (``track.twin``), since a settled pose may still be the twin's.
 
+With ``backward_live_only``, only the primitives with a live track start (about half the pass's time).
+
 Each backward track believes only its primitive (late commitment, as in the causal pass), is moved, weighed,
 recognised, recovered, pruned and merged by the causal loop's own stages, with the reversed model. At the end
 of the backward pass (the clip's first frame) every track has the evidence of the whole clip along its own
