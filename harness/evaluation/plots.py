@@ -161,11 +161,13 @@ def plot_class_heatmap(per_class: pd.DataFrame, classes: list[str], path: Path) 
     for r in per_class.itertuples(index=False):
         if r.class_true in classes:
             acc[classes.index(r.class_true), cols.index((r.method, r.condition))] = r.accuracy
-    fig, ax = plt.subplots(figsize=(max(3.6, 1.6 + 0.75 * len(cols)), 1.0 + 0.36 * len(classes)))
+    one_condition = len({c for _, c in cols}) == 1
+    # The rotated method (and condition) labels need their own height, however few the classes.
+    labels_height = 0.8 if one_condition else 1.3
+    fig, ax = plt.subplots(figsize=(max(3.6, 1.6 + 0.75 * len(cols)), 0.6 + labels_height + 0.36 * len(classes)))
     ax.imshow(np.nan_to_num(acc, nan=0.0), cmap="RdYlGn", vmin=0.0, vmax=1.0, aspect="auto")
     for (i, j), a in np.ndenumerate(acc):
         ax.text(j, i, "–" if np.isnan(a) else f"{a:.2f}", ha="center", va="center", fontsize=7)
-    one_condition = len({c for _, c in cols}) == 1
     labels = [m if one_condition else f"{m}\n{c}" for m, c in cols]
     ax.set_xticks(range(len(cols)), labels, rotation=60, ha="right", fontsize=7)
     ax.set_yticks(range(len(classes)), classes, fontsize=8)
