@@ -63,8 +63,10 @@ class TrackerConfig:
     refine_position_std: float = 0.25        # m: least pose freedom recovery has around the filter's estimate
     refine_rotation_std: float = 0.3         # rad: recovery's rotation freedom around the filter's estimate
     recover_tracks: int = 1                  # tracks (most evidence first) refined by recovery each frame (2:
-                                             # 73% against 72% on 60 development runs, at twice the cost)
-    em_iterations: int = 3                   # re-assignments of flows to model points in recovery (issue 5)
+                                             # 73% against 72% on 60 development runs, at twice the cost; on
+                                             # 240 runs of seeds 101-103, 13 fixed / 16 lost)
+    em_iterations: int = 3                   # re-assignments of flows to model points in recovery (issue 5;
+                                             # 2: 10 fixed / 11 lost, smoothed 7 / 10 on 240 development runs)
     guide_fraction: float = 0.1              # share of a track's particles proposed around recovery's pose
     guide_rotation_std: float = 0.05         # rad, spread of those proposals (position: half the cloud's spread)
     track_turns: tuple[float, ...] = (90.0, 180.0, -90.0)   # tracks spawned at these turns of the leader
