@@ -69,7 +69,8 @@ def _times(tree: Path, db_path: Path, obs_paths: list[Path], particles: int | No
     subprocess, with engine ``settings``."""
     env = dict(os.environ, PYTHONPATH=str(tree))
     done = subprocess.run([sys.executable, "-c", _TIMING_SCRIPT, str(db_path), str(particles or "default"), str(points),
-                           json.dumps(settings), *map(str, obs_paths)], cwd=tree, env=env, check=True, capture_output=True, text=True)
+                           json.dumps(settings), *map(str, obs_paths)], cwd=tree, env=env, check=True,
+                          capture_output=True, text=True)
     times = json.loads(done.stdout.strip().splitlines()[-1])
     frames = sum(n for _, _, n in times)
     return (1e3 * sum(t for t, _, _ in times) / frames,

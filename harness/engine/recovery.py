@@ -271,14 +271,11 @@ def _rotation_matrix(v, out):
     out[2, 0], out[2, 1], out[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
 
 
-def mean_angles(model, recognizers: list) -> np.ndarray:
-    """``(J, 50)``: each belief's mean angles under its most probable primitive (the prior mean ``recover``
-    starts from, ``Track.best_state_belief``)."""
-    C, K = model.n_classes, model.n_states
-    best = np.array([int(np.argmax(r.class_posterior)) for r in recognizers])
-    gamma = np.array([r.state_posterior[c] for r, c in zip(recognizers, best)])
-    gamma /= gamma.sum(axis=1, keepdims=True)
-    means = model.db_means[:, ANGLES].reshape(C, K, -1)[best]
+def mean_angles(model, best: np.ndarray, state_beliefs: np.ndarray) -> np.ndarray:
+    """``(J, 50)``: the mean angles of state beliefs ``(J, K)`` over the states of primitives ``best`` ``(J,)``
+    (``Track.best_states``): ``recover``'s prior mean, for many tracks in one product."""
+    gamma = state_beliefs / state_beliefs.sum(axis=1, keepdims=True)
+    means = model.db_means[:, ANGLES].reshape(model.n_classes, model.n_states, -1)[best]
     return np.einsum("jk,jkd->jd", gamma, means)
 
 

@@ -177,12 +177,17 @@ class Track:
         post = self.recognizer.posterior.ravel()
         return post @ dists.base_linear, post @ dists.base_angular
 
-    def best_state_belief(self) -> np.ndarray:
-        """``(C * K,)``: the state belief of the most probable primitive, zero elsewhere (recovery's prior)."""
-        C, K = self.recognizer.log_alpha.shape
+    def best_states(self) -> tuple[int, np.ndarray]:
+        """The most probable primitive and its state belief ``(K,)`` (recovery's prior)."""
         best = int(np.argmax(self.recognizer.class_posterior))
+        return best, self.recognizer.state_posterior[best]
+
+    def best_state_belief(self) -> np.ndarray:
+        """``(C * K,)``: ``best_states`` placed among all database states, zero elsewhere."""
+        C, K = self.recognizer.log_alpha.shape
+        best, states = self.best_states()
         out = np.zeros(C * K)
-        out[best * K:(best + 1) * K] = self.recognizer.state_posterior[best]
+        out[best * K:(best + 1) * K] = states
         return out
 
     # --- the pose -------------------------------------------------------------------------------

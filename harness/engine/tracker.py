@@ -167,7 +167,8 @@ class Tracker:
                                     np.maximum(track.pose_std, 1e-6), fix_pose=self.source.fixed))
         if rest:
             # The others' mean angles in one product: with dozens of tracks early on, a call each cost more.
-            angles = mean_angles(self.model, [t.recognizer for t in rest])
+            best, states = zip(*(t.best_states() for t in rest))
+            angles = mean_angles(self.model, np.array(best), np.array(states))
             rotations = geometry.to_matrix(np.array([t.pose[1] for t in rest]))
             for track, theta, rot in zip(rest, angles, rotations):
                 track.recovered(Recovery(theta, track.pose[0], rot, refined=False))
