@@ -1,14 +1,15 @@
 """How the database's training rule biases recognition on real captures: joint-space recognition (the
 ``joint_space`` method, exactly) under alternative rules, on the capture scenarios' own splits.
 
-Run: ``python benchmarks/database_rules.py [DIR] [--rules A,B] [--scenarios S,T]`` (DIR defaults to
+Run: ``python benchmarks/database_rules.py [DIR] [--rules A,B] [--outliers E,F] [--scenarios S,T]`` (DIR defaults to
 ``../shared/mocap/cmu``). For every run of ``scenarios/sim2real.yaml``, ``sim2real_mixed.yaml`` and both conditions
 of ``mocap.yaml`` (leave-one-out, cross-subject), the database is trained on what the pipeline trains it on
 (``pipeline.training_motions``) under each rule, and the test capture is recognised from its true joint-space
 features. Accuracy over all runs, then over the development demonstrations (the performer's calibration
 demonstrations, ``realism.calibration_split``: what settings are chosen on) and the report demonstrations
-apart; per class; and the classes answered for wrong ones. ``--procedural`` adds the procedural default
-scenario's development runs (seed 101, ``scenarios/dev_default.yaml``).
+apart; per class; and the classes answered for wrong ones. ``--outliers``: the emissions' per-feature outlier
+shares to compare (``MotionDatabase.log_emissions``; 0 is the plain Gaussian, the default is the method's),
+each scored over the capture's measured features as the method does.
 
 Rules (``RULES``): ``group`` (the feature groups' floors alone, as before issue 24), ``human`` (the human floor
 at ``FLOOR_SCALE``, the default), ``human<s>`` (at scale ``s``), ``human-rates`` (the human floor on the rates and the base's velocities only), ``balanced`` (the human floor, and every class
@@ -31,6 +32,7 @@ from scipy.special import log_softmax
 
 from harness.engine import MotionDatabase, motion_features, recognize_features
 from harness.engine.features import ANGLES, measured_features
+from harness.engine.recognition import FEATURE_OUTLIER
 from harness.engine.variance_floor import FLOOR_SCALE, HUMAN_FLOOR_PATH, group_floor, read_human_floor
 from harness.evaluation.pipeline import test_motion, training_identity, training_motions
 from harness.evaluation.runner import plan
@@ -114,9 +116,10 @@ def stack(parts: list[MotionDatabase]) -> MotionDatabase:
     return db
 
 
-def log_likelihoods(db: MotionDatabase, motion) -> np.ndarray:
-    """``(C,)`` the recursion's final log posterior (uniform prior: the class log-likelihoods up to a constant)."""
-    post = recognize_features(db, motion_features(motion))[-1]
+def log_likelihoods(db: MotionDatabase, motion, outlier: float) -> np.ndarray:
+    """``(C,)`` the recursion's final log posterior (uniform prior: the class log-likelihoods up to a constant),
+    the emissions with the per-feature ``outlier`` share over the capture's measured features."""
+    post = recognize_features(db, motion_features(motion), outlier=outlier, measured=measured_features(motion))[-1]
     return np.log(np.maximum(post, 1e-300))
 
 
@@ -137,24 +140,27 @@ def scenario(name: str, capture_dir: str):
     return resolve_capture(load_scenario(ROOT / "scenarios" / SCENARIOS[name]), capture_dir)
 
 
-def evaluate(scenario_name: str, rule: str, capture_dir: str, development: set[str]) -> list[dict]:
+def evaluate(scenario_name: str, rule: str, capture_dir: str, development: set[str],
+             outliers: tuple[float, ...] = (FEATURE_OUTLIER,)) -> dict[float, list[dict]]:
     dbs = Databases(rule)
-    rows = []
+    rows = {eps: [] for eps in outliers}
     for run in plan(scenario(scenario_name, capture_dir), "/nonexistent"):
         motion = test_motion(run)
         db = dbs(training_motions(run.config, motion))
-        rows.append({"condition": f"{scenario_name}/{run.condition_label}", "label": motion.label,
-                     "dev": motion.demo + motion.label in development, "classes": db.classes_,
-                     "scores": log_likelihoods(db, motion), "frames": motion.n_frames})
-    if rule.startswith("offset-"):
-        dev = [r for r in rows if r["dev"]]
-        o = fit_offsets(np.array([r["scores"] for r in dev]), np.array([r["frames"] for r in dev]),
-                        np.array([r["label"] for r in dev]), dev[0]["classes"])
-        print(f"  offsets (nats/frame): {dict(zip(dev[0]['classes'], np.round(o, 2)))}")
-        for r in rows:
-            r["scores"] = r["scores"] - o * r["frames"]
-    for r in rows:
-        r["answer"] = str(r["classes"][np.argmax(r["scores"])])
+        for eps in outliers:
+            rows[eps].append({"condition": f"{scenario_name}/{run.condition_label}", "label": motion.label,
+                              "dev": motion.demo + motion.label in development, "classes": db.classes_,
+                              "scores": log_likelihoods(db, motion, eps), "frames": motion.n_frames})
+    for eps, rs in rows.items():
+        if rule.startswith("offset-"):
+            dev = [r for r in rs if r["dev"]]
+            o = fit_offsets(np.array([r["scores"] for r in dev]), np.array([r["frames"] for r in dev]),
+                            np.array([r["label"] for r in dev]), dev[0]["classes"])
+            print(f"  offsets (nats/frame, outlier {eps:g}): {dict(zip(dev[0]['classes'], np.round(o, 2)))}")
+            for r in rs:
+                r["scores"] = r["scores"] - o * r["frames"]
+        for r in rs:
+            r["answer"] = str(r["classes"][np.argmax(r["scores"])])
     return rows
 
 
@@ -175,19 +181,23 @@ def main() -> int:
     parser.add_argument("directory", nargs="?", default=str(DEFAULT_DIR))
     parser.add_argument("--rules", default="group,human", help="comma-separated, of: " + ", ".join(RULES)
                         + ", offset-group, offset-human")
+    parser.add_argument("--outliers", default=str(FEATURE_OUTLIER),
+                        help="comma-separated per-feature outlier shares of the emissions (0: plain Gaussian)")
     parser.add_argument("--scenarios", default="sim2real,mixed,mocap", help="of: " + ", ".join(SCENARIOS))
     args = parser.parse_args()
     # The capture scenario's training set without a test motion is every capture (retargeted once, cached).
     captures = training_motions(scenario("mocap", args.directory), None)
     development = {m.demo + m.label for m in calibration_split(captures)[0]}
+    outliers = tuple(float(x) for x in args.outliers.split(","))
     for rule in args.rules.split(","):
         for name in args.scenarios.split(","):
             if rule.startswith("offset-") and name != "sim2real":
                 continue
             t0 = time.perf_counter()
-            rows = evaluate(name, rule, args.directory, development)
-            for cond in dict.fromkeys(r["condition"] for r in rows):
-                print(f"{rule:10} {cond:28} {summary([r for r in rows if r['condition'] == cond])}")
+            for eps, rows in evaluate(name, rule, args.directory, development, outliers).items():
+                for cond in dict.fromkeys(r["condition"] for r in rows):
+                    print(f"{rule:10} {eps:<5g} {cond:28} "
+                          f"{summary([r for r in rows if r['condition'] == cond])}")
             print(f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
     return 0
 

@@ -55,7 +55,7 @@ def test_forward_recursion_matches_hmmlearn(database, body):
     db = database
     m = synthetic_demos(body, "squat", 1, np.random.default_rng(5))[0]
     f = motion_features(m)
-    post = recognize_features(db, f, start_spread=0.0)
+    post = recognize_features(db, f, start_spread=0.0, outlier=0.0)
     scores = []
     for c in range(db.n_classes):
         hmm = GaussianHMM(n_components=db.means_.shape[1], covariance_type="diag")
@@ -400,6 +400,53 @@ def test_compiled_rotation_vector_and_matrix_match_geometry(rng):
         if np.linalg.norm(expected) > np.pi - 1e-9:          # a half turn: v and -v are the same rotation
             expected = expected * np.sign(expected @ out)
         np.testing.assert_allclose(out, expected, rtol=0, atol=1e-12)
+
+
+
+def test_robust_emissions_against_per_feature_densities(database):
+    """``log_emissions`` with an outlier share is the sum over the measured features of
+    ``log((1 - eps) N(f; m, v) + eps / span)``, computed here feature by feature with scipy; the span is the
+    lowest ``mean - 3 sd`` to the highest ``mean + 3 sd``; unmeasured features do not count."""
+    from scipy.stats import norm
+    db = database
+    f = db.means_[1, 3] + np.random.default_rng(2).normal(0, 1, (2, 106)) * np.sqrt(db.covars_[1, 3]) * 4
+    measured = np.random.default_rng(3).random(106) < 0.7
+    sd = np.sqrt(db.covars_)
+    span = (db.means_ + 3 * sd).max(axis=(0, 1)) - (db.means_ - 3 * sd).min(axis=(0, 1))
+    np.testing.assert_allclose(db.feature_span(), span)
+    eps = 0.05
+    got = db.log_emissions(f, outlier=eps, measured=measured)
+    for t in range(2):
+        for c, k in [(0, 0), (1, 3), (2, 7)]:
+            dens = (1 - eps) * norm.pdf(f[t], db.means_[c, k], sd[c, k]) + eps / span
+            assert got[t, c, k] == pytest.approx(np.log(dens[measured]).sum(), rel=1e-10)
+    plain = db.log_emissions(f)
+    assert plain[0, 1, 3] == pytest.approx(norm.logpdf(f[0], db.means_[1, 3], sd[1, 3]).sum(), rel=1e-10)
+    moved = f.copy()
+    moved[:, ~measured] += 10.0                                         # unmeasured: no effect
+    np.testing.assert_allclose(db.log_emissions(moved, outlier=eps, measured=measured), got)
+    with pytest.raises(EngineError, match="outlier"):
+        db.log_emissions(f, outlier=1.0)
+    with pytest.raises(EngineError, match="measured"):
+        db.log_emissions(f, measured=measured[:50])
+
+
+def test_one_far_feature_does_not_hand_the_answer_to_the_broad_class(database):
+    """The catch-all the outlier share removes: a performance that matches class A's state in every feature
+    but one, held 40 sd away, goes to a class B whose Gaussians are four times broader under the plain
+    Gaussian emissions, and to A with the outlier share."""
+    db = MotionDatabase(n_states=2, mirrored=False)
+    mean = np.zeros(106)
+    db.classes_ = np.array(["a", "b"])
+    db.means_ = np.stack([np.tile(mean, (2, 1)), np.tile(mean + 0.3, (2, 1))])
+    db.covars_ = np.stack([np.full((2, 106), 0.01), np.full((2, 106), 0.16)])
+    db.transmat_ = np.tile([[0.5, 0.5], [0.0, 1.0]], (2, 1, 1))
+    db.startprob_ = np.tile([1.0, 0.0], (2, 1))
+    db.fps_, db.cyclic_ = 30.0, np.zeros(2, dtype=bool)
+    f = np.tile(mean, (5, 1))
+    f[:, 7] = 40 * 0.1
+    assert db.classes_[recognize_features(db, f, outlier=0.0)[-1].argmax()] == "b"
+    assert db.classes_[recognize_features(db, f)[-1].argmax()] == "a"
 
 
 def test_database_rejects_bad_input(database, body, tmp_path):

@@ -146,15 +146,39 @@ class MotionDatabase:
         """Indices of each chain's last state (a non-cyclic primitive's end rest, absorbing)."""
         return np.arange(1, self.n_chains + 1) * self.n_states - 1
 
-    def log_emissions(self, features: np.ndarray) -> np.ndarray:
-        """Joint-space log densities ``(T, C, S)`` of features ``(T, 106)`` under every state."""
+    def feature_span(self) -> np.ndarray:
+        """``(106,)`` the width of each feature's range under the database: from the lowest ``mean - 3 sd`` to the
+        highest ``mean + 3 sd`` over every state (the support of ``log_emissions``' outlier term). The same for
+        a feature and its mirror image, so a both-handed database stays closed under the mirror."""
+        self._check_fitted()
+        sd = np.sqrt(self.covars_)
+        return (self.means_ + 3.0 * sd).max(axis=(0, 1)) - (self.means_ - 3.0 * sd).min(axis=(0, 1))
+
+    def log_emissions(self, features: np.ndarray, outlier: float = 0.0,
+                      measured: np.ndarray | None = None) -> np.ndarray:
+        """Joint-space log densities ``(T, C, S)`` of features ``(T, 106)`` under every state.
+
+        ``outlier`` (``eps``): each feature's density is ``(1 - eps) N(f; mean, var) + eps / span`` (``span``:
+        ``feature_span``) instead of the Gaussian alone, the joint-space counterpart of the flows' outlier term:
+        one feature a new performer holds far from every state (a posture, a style) costs at most
+        ``log(eps / span)`` instead of growing with its squared distance, so it cannot hand the answer to the
+        class whose Gaussians are broadest. ``measured`` ``(106,)`` bool: only these features are scored (the
+        marginal over the others, the rule training follows, ``features.measured_features``)."""
         self._check_fitted()
         f = np.asarray(features, dtype=float)
         if f.ndim != 2 or f.shape[1] != N_FEATURES:
             raise EngineError(f"features must be (T, {N_FEATURES}), got {f.shape}")
-        var = self.covars_[None]
-        d = f[:, None, None, :] - self.means_[None]
-        return -0.5 * (np.sum(d * d / var, axis=-1) + np.sum(np.log(2 * np.pi * var), axis=-1))
+        if not 0.0 <= outlier < 1.0:
+            raise EngineError(f"outlier must be in [0, 1), got {outlier}")
+        keep = np.ones(N_FEATURES, dtype=bool) if measured is None else np.asarray(measured, dtype=bool)
+        if keep.shape != (N_FEATURES,):
+            raise EngineError(f"measured must be ({N_FEATURES},) bool, got {keep.shape}")
+        var = self.covars_[None][..., keep]
+        d = f[:, None, None, keep] - self.means_[None][..., keep]
+        log_g = -0.5 * (d * d / var + np.log(2 * np.pi * var))
+        if outlier > 0.0:
+            log_g = np.logaddexp(np.log1p(-outlier) + log_g, np.log(outlier) - np.log(self.feature_span()[keep]))
+        return log_g.sum(axis=-1)
 
     # --- files ----------------------------------------------------------------------------------
 

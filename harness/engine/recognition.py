@@ -146,12 +146,20 @@ class Recognizer:
         return self._cached("class_posterior", compute)
 
 
+# The joint-space recognition's per-feature outlier share (``MotionDatabase.log_emissions``). Chosen on the
+# capture scenarios' development captures (``benchmarks/database_rules.py --outliers``): 163 of 195 right,
+# 0.03 and 0.1 one fewer, the plain Gaussian 152 (docs/engine.md, "Database").
+FEATURE_OUTLIER = 0.05
+
+
 def recognize_features(db: MotionDatabase, features: np.ndarray, start_spread: float = 0.05,
-                       recognizer: Recognizer | None = None) -> np.ndarray:
+                       recognizer: Recognizer | None = None, outlier: float = FEATURE_OUTLIER,
+                       measured: np.ndarray | None = None) -> np.ndarray:
     """Joint-space recognition (the upper-bound baseline): class posteriors ``(T, C)`` from true features, by
-    ``recognizer`` (default: a fresh ``Recognizer`` without pruning)."""
+    ``recognizer`` (default: a fresh ``Recognizer`` without pruning), with ``outlier`` and ``measured`` as in
+    ``MotionDatabase.log_emissions`` (``outlier=0``: the HMMs' plain Gaussian emissions)."""
     rec = recognizer if recognizer is not None else Recognizer(db, start_spread=start_spread, prune=0.0)
-    log_b = db.log_emissions(features)
+    log_b = db.log_emissions(features, outlier=outlier, measured=measured)
     out = np.empty((len(log_b), db.n_classes))
     for t in range(len(log_b)):
         rec.predict()

@@ -107,10 +107,11 @@ class SwitchingRecognizer(Recognizer):
 
 
 def recognize_stream_features(db: MotionDatabase, features: np.ndarray, switch: float,
-                              start_spread: float = 0.05) -> np.ndarray:
-    """Joint-space recognition over a stream (the upper-bound baseline): class posteriors ``(T, C)``."""
+                              start_spread: float = 0.05, measured: np.ndarray | None = None) -> np.ndarray:
+    """Joint-space recognition over a stream (the upper-bound baseline): class posteriors ``(T, C)``
+    (``recognize_features``' emissions)."""
     return recognize_features(db, features, recognizer=SwitchingRecognizer(db, switch, start_spread=start_spread,
-                                                                           prune=0.0))
+                                                                           prune=0.0), measured=measured)
 
 
 def online_labels(class_posterior: np.ndarray, min_frames: int) -> np.ndarray:

@@ -38,6 +38,7 @@ import numpy as np
 
 from harness.body import BodyModel, SurfacePoints
 from harness.engine import Estimate, MotionDatabase, Tracker, TrackerConfig, motion_features, recognize_features
+from harness.engine.features import measured_features
 from harness.engine.recovery import fit_without_database
 from harness.engine.switching import STREAM_MIN_FRAMES, online_labels, recognize_stream_features
 from harness.evaluation import metrics
@@ -301,10 +302,10 @@ def _no_database(inputs: RunInputs, engine: EngineRuns) -> Estimate:
 
 @method("joint_space", recognises=True, recovers=False)
 def _joint_space(inputs: RunInputs, engine: EngineRuns) -> Estimate:
-    features = motion_features(inputs.motion)
+    features, measured = motion_features(inputs.motion), measured_features(inputs.motion)
     switch = inputs.engine.primitive_switch
-    post = (recognize_stream_features(inputs.db, features, switch, inputs.engine.start_spread) if switch > 0
-            else recognize_features(inputs.db, features))
+    post = (recognize_stream_features(inputs.db, features, switch, inputs.engine.start_spread, measured=measured)
+            if switch > 0 else recognize_features(inputs.db, features, measured=measured))
     return Estimate(np.asarray(inputs.classes), class_posterior=post)
 
 
