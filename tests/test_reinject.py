@@ -92,7 +92,7 @@ def test_the_same_seed_gives_the_same_newcomers(body, trained, clip):
     np.testing.assert_array_equal(runs[0].leader, runs[1].leader)
 
 
-def test_screening_sums_each_alternatives_frames_under_the_moment_matched_belief(body, trained, clip):
+def test_screening_sums_each_alternatives_frames_under_the_moment_matched_belief(body, trained, clip, monkeypatch):
     from harness.engine.pose_source import screen
 
     tracker = Tracker(trained, body, CONFIG, rng=np.random.default_rng(2))
@@ -102,7 +102,7 @@ def test_screening_sums_each_alternatives_frames_under_the_moment_matched_belief
     source, scorer = tracker.source, tracker.scorer
     tracks = tracker.tracks[:2]
     alts = alternatives(CONFIG)[:3]
-    got = screen(scorer, source._frames, [t.history for t in tracks], alts)
+    got, cache = screen(scorer, source._frames, [t.history for t in tracks], alts)
     for track, row in zip(tracks, got):
         expected = np.zeros(len(alts))
         for snap in list(track.history)[1:]:
@@ -114,3 +114,20 @@ def test_screening_sums_each_alternatives_frames_under_the_moment_matched_belief
                 img = scorer.image(frame, geometry.to_matrix(q), p, blob)
                 expected[k] += scorer.frame_log_likelihood(frame, img, CONFIG.n_eff_recognition)[0]
         np.testing.assert_allclose(row, expected, rtol=1e-9, atol=1e-9)
+    # From the cache (the overlapping windows of successive calls): the same sums, and no frame scored again.
+    calls = []
+    image = type(scorer).image
+    with monkeypatch.context() as m:
+        m.setattr(type(scorer), "image", lambda *a, **k: calls.append(1) or image(*a, **k))
+        again, kept = screen(scorer, source._frames, [t.history for t in tracks], alts, cache)
+    assert not calls and kept.keys() == cache.keys()
+    for a, b in zip(got, again):
+        np.testing.assert_array_equal(a, b)
+    # A history screened once more after a step: only its new snapshot is scored; the old ones come from the cache.
+    tracker.step(clip.flows[7])
+    tracks_now = [t for t in tracker.tracks if t.id in {t0.id for t0 in tracks}]
+    assert tracks_now
+    fresh, _ = screen(scorer, source._frames, [t.history for t in tracks_now], alts)
+    cached, _ = screen(scorer, source._frames, [t.history for t in tracks_now], alts, cache)
+    for a, b in zip(fresh, cached):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9)

@@ -103,6 +103,7 @@ class ParticleTracks:
         self._spawned = 0
         self._frames: dict[int, Frame] = {}      # the frames re-injection replays
         self._alternatives = alternatives(scorer.config)
+        self._screened: dict = {}                # re-injection's screened snapshots (``screen``)
 
     @property
     def memory(self) -> int:
@@ -303,7 +304,8 @@ class ParticleTracks:
             best.setdefault(t.primitive, t)
         parents = list(best.values())[:cfg.reinject_classes]
         own = Alternative("own")
-        screened = screen(self.scorer, self._frames, [p.history for p in parents], [own] + self._alternatives)
+        screened, self._screened = screen(self.scorer, self._frames, [p.history for p in parents],
+                                          [own] + self._alternatives, self._screened)
         jobs = [(parent, self._alternatives[int(np.argmax(s[1:]))]) for parent, s in zip(parents, screened)
                 if s[1:].max() > s[0]]
         replayed = replay(self.scorer, self._frames, [p.history for p, _ in jobs], [a for _, a in jobs])
@@ -334,38 +336,47 @@ class ParticleTracks:
                                family_nats=cfg.depth_prune_nats)
 
 
-def screen(scorer: Scorer, frames: dict[int, Frame], histories: list, alternatives: list[Alternative]) -> list:
+def screen(scorer: Scorer, frames: dict[int, Frame], histories: list, alternatives: list[Alternative],
+           cache: dict | None = None) -> tuple[list, dict]:
     """For each track history: ``(A,)`` the tempered log-likelihood summed over its later frames of each
     alternative's transform of its poses, under the track's belief of that frame moment-matched over its
-    primitives' active states (one hypothesis per alternative and frame, all in one kernel call per frame)."""
+    primitives' active states (one hypothesis per alternative and frame, all in one kernel call per frame).
+
+    ``cache``: the rows ``(A,)`` of snapshots already screened against the same ``alternatives`` (by
+    ``id``, with the snapshot kept alive beside its row); the windows of successive calls overlap, so each
+    snapshot is scored once. Returns the sums and the cache of this call's snapshots."""
     cfg = scorer.config
-    rows, owners = [], []
+    cache = cache or {}
+    rows, owners, known = [], [], {}
     for j, h in enumerate(histories):
         for snap in list(h)[1:]:
+            if id(snap) in cache:
+                known[id(snap)] = cache[id(snap)]
+                continue
             rec = snap.recognizer
             rows.append(np.where(rec.active(), rec.posterior, 0.0).ravel())
-            owners.append((j, snap))
-    out = [np.zeros(len(alternatives)) for _ in histories]
-    if not rows:
-        return out
-    blobs = scorer.model.dists.mixtures(np.array(rows))
-    by_frame: dict[int, list[int]] = {}
-    for i, (_, snap) in enumerate(owners):
-        by_frame.setdefault(snap.index, []).append(i)
+            owners.append(snap)
     A = len(alternatives)
+    scored = {id(snap): (snap, np.zeros(A)) for snap in owners}
+    blobs = scorer.model.dists.mixtures(np.array(rows)) if rows else None
+    by_frame: dict[int, list[int]] = {}
+    for i, snap in enumerate(owners):
+        by_frame.setdefault(snap.index, []).append(i)
     for index, members in by_frame.items():
         frame = frames[index]
         if not frame.has_flows:
             continue
-        pos = np.array([owners[i][1].pose[0] for i in members])
-        quat = np.array([owners[i][1].pose[1] for i in members])
+        pos = np.array([owners[i].pose[0] for i in members])
+        quat = np.array([owners[i].pose[1] for i in members])
         moved = [alt.apply(pos, quat, frame.gravity) for alt in alternatives]     # member-major below
         img = scorer.image(frame, geometry.to_matrix(np.stack([q for _, q in moved], axis=1).reshape(-1, 4)),
                            np.stack([p for p, _ in moved], axis=1).reshape(-1, 3), blobs, np.repeat(members, A))
         ll = scorer.frame_log_likelihood(frame, img, cfg.n_eff_recognition).reshape(len(members), A)
         for i, row in zip(members, ll):
-            out[owners[i][0]] += row
-    return out
+            scored[id(owners[i])][1][:] = row
+    known |= scored
+    out = [sum((known[id(snap)][1] for snap in list(h)[1:]), np.zeros(A)) for h in histories]
+    return out, known
 
 
 def replay(scorer: Scorer, frames: dict[int, Frame], histories: list, alternatives: list[Alternative]) -> list:
