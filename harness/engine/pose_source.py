@@ -348,7 +348,7 @@ def screen(scorer: Scorer, frames: dict[int, Frame], histories: list, alternativ
     cfg = scorer.config
     cache = cache or {}
     rows, owners, known = [], [], {}
-    for j, h in enumerate(histories):
+    for h in histories:
         for snap in list(h)[1:]:
             if id(snap) in cache:
                 known[id(snap)] = cache[id(snap)]
