@@ -21,21 +21,27 @@ _INV_LN2 = 1.44269504088896338700e+00
 _TAN_PI_8 = 0.41421356237309503           # sqrt(2) - 1
 
 
+@numba.njit(inline="always", fastmath=FAST)
+def exp_parts(x):
+    """``exp(x) = m * 2^k`` for ``x`` in ``[EXP_MIN, 709]``: ``(m, bits)`` with ``bits`` the int64 pattern of the
+    double ``2^k`` (``k = round(x / ln 2)``, ``|r| <= ln(2) / 2``, ``m = exp(r)`` by its Taylor polynomial of
+    degree 13, truncation below 1e-17). A loop stores ``bits`` in an int64 array and multiplies by its float64
+    view; inlined, so that the caller's loop vectorises and may fuse its own arithmetic with it."""
+    k = np.floor(x * _INV_LN2 + 0.5)
+    r = (x - k * _LN2_HI) - k * _LN2_LO
+    m = 1.0 + r * (1.0 + r * (1 / 2 + r * (1 / 6 + r * (1 / 24 + r * (1 / 120 + r * (1 / 720 + r * (
+        1 / 5040 + r * (1 / 40320 + r * (1 / 362880 + r * (1 / 3628800 + r * (1 / 39916800 + r * (
+            1 / 479001600 + r * (1 / 6227020800)))))))))))))
+    return m, (np.int64(k) + 1023) << 52
+
+
 @numba.njit(cache=True, fastmath=FAST)
 def exp_into(x, out, bits):
-    """``out[i] = exp(x[i])`` (zero below ``EXP_MIN``, arguments above 709 clipped): ``exp(x) = 2^k exp(r)``
-    with ``k = round(x / ln 2)``, ``|r| <= ln(2) / 2``, ``exp(r)`` by its Taylor polynomial of degree 13
-    (truncation below 1e-17) and ``2^k`` built in the exponent bits. ``bits``: int64 work array of the same
-    length."""
+    """``out[i] = exp(x[i])`` (zero below ``EXP_MIN``, arguments above 709 clipped; ``exp_parts``). ``bits``:
+    int64 work array of the same length."""
     n = len(x)
     for i in range(n):
-        xi = min(max(x[i], EXP_MIN), 709.0)
-        k = np.floor(xi * _INV_LN2 + 0.5)
-        r = (xi - k * _LN2_HI) - k * _LN2_LO
-        out[i] = 1.0 + r * (1.0 + r * (1 / 2 + r * (1 / 6 + r * (1 / 24 + r * (1 / 120 + r * (1 / 720 + r * (
-            1 / 5040 + r * (1 / 40320 + r * (1 / 362880 + r * (1 / 3628800 + r * (1 / 39916800 + r * (
-                1 / 479001600 + r * (1 / 6227020800)))))))))))))
-        bits[i] = (np.int64(k) + 1023) << 52
+        out[i], bits[i] = exp_parts(min(max(x[i], EXP_MIN), 709.0))
     scale = bits.view(np.float64)
     for i in range(n):
         out[i] = out[i] * scale[i] if x[i] >= EXP_MIN else 0.0
