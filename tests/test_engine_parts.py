@@ -14,7 +14,7 @@ from harness.body import forward_points, forward_points_and_jacobians, sample_su
 from harness.engine import MotionDatabase, Recognizer, motion_features, recognize_features
 from harness.engine.likelihood import FlowModel, flow_log_likelihoods, responsibilities, tempered
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
-                                            motion_mean, pose_mixture_log_density, propose, propose_many,
+                                            motion_mean, pose_mixture_log_density, propose, propose_many, settled,
                                             systematic_resample, upright_orientations)
 from harness.engine.recovery import Prior, Recovery, refine_pose
 from harness.engine.transform import ImageDistributions, patch_std
@@ -78,6 +78,46 @@ def test_recognizer_pruning_and_empty_frames(database):
     assert rec.active().sum() == 6 and rec.active()[:, [0, 8]].all()
     with pytest.raises(EngineError, match="emissions must be"):
         rec.update(np.zeros((2, 2)))
+
+
+def test_the_compiled_recursion_equals_its_numpy_definition(database):
+    """Each step of the recursion (transitions, emissions folded in and normalised, the derived posteriors and
+    the active states) against the formulas written in numpy, over frames of random emissions, for a belief
+    over every primitive and one restricted to two (the others -inf throughout)."""
+    rng = np.random.default_rng(3)
+    for restrict in (None, [0, 2]):
+        rec = Recognizer(database, start_spread=0.05, prune=1e-4)
+        if restrict is not None:
+            rec.restrict(restrict)
+        la = rec.log_alpha.copy()
+        for frame in range(6):
+            if frame:
+                rec.predict()
+                top = la.max(axis=1, keepdims=True)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    moved = np.log(np.einsum("ck,ckj->cj", np.exp(la - top), database.transmat_)) + top
+                la = np.where(np.isfinite(top), moved, -np.inf)
+                np.testing.assert_allclose(rec.log_alpha, la, rtol=1e-12, atol=1e-12)
+            active = (la >= la.max(axis=1, keepdims=True) + np.log(1e-4)) & np.isfinite(la)
+            assert np.array_equal(rec.active(), active)
+            log_b = rng.normal(-20.0, 5.0, la.shape)
+            norm = rec.update(log_b)
+            la = la + np.where(active, log_b, log_b[active].min())
+            finite = la[np.isfinite(la)]
+            expect = np.log(np.sum(np.exp(finite - finite.max()))) + finite.max()
+            assert norm == pytest.approx(expect, abs=1e-10)
+            la = la - expect
+            np.testing.assert_allclose(rec.log_alpha, la, rtol=1e-12, atol=1e-12)
+            post = np.exp(la - la.max())
+            np.testing.assert_allclose(rec.posterior, post / post.sum(), rtol=1e-12, atol=1e-300)
+            np.testing.assert_allclose(rec.class_posterior, post.sum(axis=1) / post.sum(), rtol=1e-12, atol=1e-300)
+            live = np.isfinite(la.max(axis=1))
+            rows = np.exp(la[live] - la[live].max(axis=1, keepdims=True))
+            np.testing.assert_allclose(rec.state_posterior[live], rows / rows.sum(axis=1, keepdims=True), rtol=1e-12,
+                                       atol=1e-300)
+            np.testing.assert_allclose(rec.state_posterior.sum(axis=1), 1.0)
+        if restrict is not None:
+            assert rec.class_posterior[1] == 0.0 and not rec.active()[1].any()
 
 
 def _random_image_distributions(rng, H, P):
@@ -207,6 +247,33 @@ def test_particle_cloud_estimate_and_motion_model(rng):
     moved, _ = motion_mean(cloud.positions, cloud.quats, np.array([1.0, 0, 0]), np.zeros(3), 1.0)
     np.testing.assert_allclose(moved - cloud.positions, np.tile(geometry.rotate(q[0], np.array([1.0, 0, 0])),
                                                                  (500, 1)), atol=1e-12)
+
+
+def test_settled_clouds_equal_the_mode_estimate_written_in_numpy(rng):
+    """``settled`` against its definition in numpy, cloud by cloud: clouds of two orientation modes (one
+    heavier), of ten or fewer particles (every particle a candidate centre) and of many; the heavier mode's mean
+    position and Markley mean, and the whole cloud's spread."""
+    clouds = []
+    for n in (3, 10, 40, 200):
+        heavy, light = geometry.exp(rng.normal(0, 1.0, 3)), geometry.exp(rng.normal(0, 1.0, 3))
+        k = (2 * n) // 3
+        q = np.concatenate([geometry.multiply(geometry.exp(rng.normal(0, 0.1, (k, 3))), heavy),
+                            geometry.multiply(geometry.exp(rng.normal(0, 0.1, (n - k, 3))), light)])
+        q *= rng.choice([-1.0, 1.0], (n, 1))           # either sign is the same rotation
+        lw = rng.normal(0, 1.0, n)
+        clouds.append(ParticleCloud(rng.normal(0, 1.0, (n, 3)) + [0, 0, 4], q, lw - np.log(np.exp(lw).sum())))
+    positions, quats, spreads = settled(clouds)
+    for cloud, pos, quat, spread in zip(clouds, positions, quats, spreads):
+        w = cloud.weights
+        centres = np.argpartition(w, -10)[-10:] if len(w) > 10 else np.arange(len(w))
+        near = np.abs(cloud.quats[centres] @ cloud.quats.T) >= np.cos(np.deg2rad(22.5))
+        near = near[np.argmax(near @ w)]
+        wm = np.where(near, w, 0.0) / w[near].sum()
+        np.testing.assert_allclose(pos, wm @ cloud.positions, rtol=1e-12)
+        np.testing.assert_allclose(quat, geometry.weighted_mean(cloud.quats, wm), atol=1e-12)
+        mean = w @ cloud.positions
+        np.testing.assert_allclose(spread, np.sqrt(w @ (cloud.positions - mean) ** 2), rtol=1e-12)
+        assert np.allclose(cloud.estimate()[1], quat, atol=1e-12)
 
 
 def test_pose_mixture_density_matches_numpy_and_integrates_to_one(rng):

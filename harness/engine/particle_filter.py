@@ -119,23 +119,82 @@ class ParticleCloud:
         self.log_weights = lw - norm
         return norm
 
-    def spread(self) -> np.ndarray:
-        """Weighted per-axis standard deviation of the positions ``(3,)``, metres."""
-        mean = self.weights @ self.positions
-        return np.sqrt(self.weights @ (self.positions - mean) ** 2)
+    def estimate(self, mode_radius: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean position ``(3,)`` and Markley average orientation ``(4,)`` of the heaviest mode
+        (``settled``)."""
+        pos, quat, _ = settled([self], MODE_RADIUS if mode_radius is None else mode_radius)
+        return pos[0], quat[0]
 
-    def estimate(self, mode_radius: float = np.deg2rad(45.0)) -> tuple[np.ndarray, np.ndarray]:
-        """Weighted mean position ``(3,)`` and Markley average orientation ``(4,)`` of the heaviest mode: the
-        particles within ``mode_radius`` of the candidate centre (one of the ten heaviest particles) that
-        gathers the most weight. A cloud may hold mirrored modes, and the mean of two modes is neither."""
-        w = self.weights
+
+MODE_RADIUS = np.deg2rad(45.0)      # a cloud's mode: the particles this close in orientation to its centre
+
+
+def settled(clouds: list[ParticleCloud], mode_radius: float = MODE_RADIUS
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each cloud's pose estimate and spread: ``(J, 3)`` weighted mean positions and ``(J, 4)`` Markley average
+    orientations (the top eigenvector of ``sum w q q^T``, ``w >= 0``) of its heaviest mode, and ``(J, 3)`` the
+    weighted per-axis standard deviations of all its positions (m).
+
+    The heaviest mode: the particles within ``mode_radius`` of the candidate centre (one of the ten heaviest
+    particles) that gathers the most weight. A cloud may hold mirrored modes, and the mean of two modes is
+    neither. The moments are one compiled pass per cloud and the eigenproblems one batched call (with a few
+    dozen tracks, numpy's calls per cloud cost more than their arithmetic)."""
+    J = len(clouds)
+    positions, spreads, moments = np.empty((J, 3)), np.empty((J, 3)), np.empty((J, 4, 4))
+    cos_half = np.cos(0.5 * mode_radius)
+    for j, cloud in enumerate(clouds):
+        w = np.exp(cloud.log_weights)
         centres = np.argpartition(w, -10)[-10:] if len(w) > 10 else np.arange(len(w))
-        # Unit quaternions a, b are within angle r of each other when |a . b| >= cos(r / 2).
-        near = np.abs(self.quats[centres] @ self.quats.T) >= np.cos(0.5 * mode_radius)
-        near = near[np.argmax(near @ w)]
-        w = np.where(near, w, 0.0)
-        w = w / w.sum()
-        return w @ self.positions, geometry.weighted_mean(self.quats, w)
+        _mode_moments(cloud.positions, cloud.quats, w, centres, cos_half, positions[j], spreads[j], moments[j])
+    _, vec = np.linalg.eigh(moments)
+    quats = vec[:, :, -1]
+    return positions, quats * np.where(quats[:, :1] >= 0, 1.0, -1.0), spreads
+
+
+@numba.njit(cache=True)
+def _mode_moments(positions, quats, w, centres, cos_half, mean, spread, moments):
+    """One cloud's part of ``settled``: the mode's mean position into ``mean``, its quaternions' weighted second
+    moment into ``moments`` ``(4, 4)`` and the whole cloud's positional spread into ``spread``. Unit quaternions
+    ``a``, ``b`` are within angle ``r`` of each other when ``|a . b| >= cos(r / 2)``; of centres that gather
+    the same weight, the first."""
+    N = len(w)
+    best, best_mass = 0, -1.0
+    for i in range(len(centres)):
+        c = quats[centres[i]]
+        mass = 0.0
+        for n in range(N):
+            q = quats[n]
+            if abs(c[0] * q[0] + c[1] * q[1] + c[2] * q[2] + c[3] * q[3]) >= cos_half:
+                mass += w[n]
+        if mass > best_mass:
+            best, best_mass = i, mass
+    c = quats[centres[best]]
+    mean[:] = 0.0
+    moments[:] = 0.0
+    for n in range(N):
+        q = quats[n]
+        if abs(c[0] * q[0] + c[1] * q[1] + c[2] * q[2] + c[3] * q[3]) >= cos_half:
+            wn = w[n] / best_mass
+            for a in range(3):
+                mean[a] += wn * positions[n, a]
+            for a in range(4):
+                for b in range(4):
+                    moments[a, b] += wn * q[a] * q[b]
+    total = 0.0
+    centre = np.zeros(3)
+    for n in range(N):
+        total += w[n]
+        for a in range(3):
+            centre[a] += w[n] * positions[n, a]
+    for a in range(3):
+        centre[a] /= total
+        spread[a] = 0.0
+    for n in range(N):
+        for a in range(3):
+            d = positions[n, a] - centre[a]
+            spread[a] += w[n] * d * d
+    for a in range(3):
+        spread[a] = np.sqrt(spread[a] / total)
 
 
 def depth_guess(intr: Intrinsics, flows: np.ndarray, body_extent: float) -> float | None:

@@ -26,7 +26,7 @@ from harness.body.model import mirror_angles
 from harness.engine.frame import Frame
 from harness.engine.logsum import logsumexp
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
-                                            initial_cloud, level_world, propose_many, systematic_resample)
+                                            initial_cloud, level_world, propose_many, settled, systematic_resample)
 from harness.engine.recovery import Recovery
 from harness.engine.scoring import Scorer
 from harness.engine.track import (Alternative, Snapshot, Track, alternatives, new_recognizer, prune_and_merge, turned,
@@ -276,8 +276,9 @@ class ParticleTracks:
         if frame.has_flows:
             for track, ll in zip(tracks, self.log_likelihoods(frame, tracks)):
                 track.reweight(ll)
-        for track in tracks:
-            track.settle(self.scorer.config.refine_position_std)
+        positions, quats, spreads = settled([t.cloud for t in tracks])
+        for track, pos, quat, spread in zip(tracks, positions, quats, spreads):
+            track.settle(pos, quat, spread, self.scorer.config.refine_position_std)
 
     def reinject(self, frame: Frame, tracks: list[Track]) -> list[Track]:
         """Every ``reinject_every`` frames, alternatives to the paths of the best track of each of the

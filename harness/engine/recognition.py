@@ -8,8 +8,8 @@ features (the upper-bound baseline) or from image flows (the engine); the recurs
 
 from __future__ import annotations
 
+import numba
 import numpy as np
-from harness.engine.logsum import logsumexp
 
 from harness.engine.database import MotionDatabase
 from harness.errors import EngineError
@@ -53,7 +53,7 @@ class Recognizer:
     @log_alpha.setter
     def log_alpha(self, value: np.ndarray) -> None:
         self._log_alpha = value
-        self._derived: dict = {}
+        self._derived: tuple = ()
 
     def restrict(self, primitives: np.ndarray) -> "Recognizer":
         """Start anew believing only ``primitives`` (indices or a ``(C,)`` mask), each with its start
@@ -72,15 +72,7 @@ class Recognizer:
         """Move the posterior of the last frame through the transitions (the prior of the next frame)."""
         if not self._started:
             return
-        # A primitive outside the belief (-inf throughout) stays so: only the others move. In probability space
-        # about each primitive's best state: a matrix product per primitive.
-        top = self.log_alpha.max(axis=1)
-        live = np.flatnonzero(np.isfinite(top))
-        moved = np.full_like(self.log_alpha, -np.inf)
-        p = np.exp(self.log_alpha[live] - top[live, None])
-        with np.errstate(divide="ignore"):
-            moved[live] = np.log(np.einsum("ck,ckj->cj", p, self._trans[live])) + top[live, None]
-        self.log_alpha = moved
+        self.log_alpha = _predicted(self.log_alpha, self._trans)
 
     def active(self) -> np.ndarray:
         """``(C, K)`` bool: the states worth evaluating in the coming update.
@@ -88,9 +80,7 @@ class Recognizer:
         Pruning is relative to the best state *of the same primitive*: a primitive that is unlikely now must
         still follow its own states, or it could never come back when its distinctive phase (the flight of a
         jump) arrives."""
-        # A primitive outside the belief (-inf throughout, see ``restrict``) has no state worth evaluating.
-        return self._cached("active", lambda: (self.log_alpha >= self.log_alpha.max(axis=1, keepdims=True)
-                                               + self._log_prune) & np.isfinite(self.log_alpha))
+        return self._all()[3]
 
     def update(self, log_b: np.ndarray | None) -> float:
         """Fold in one frame's emission log-likelihoods ``(C, K)``; entries of inactive states are ignored.
@@ -100,50 +90,125 @@ class Recognizer:
 
         ``None`` (or an all-zero array) means a frame without evidence: the belief only moves.
         """
-        active = self.active()
         if log_b is not None:
             log_b = np.asarray(log_b, dtype=float)
             if log_b.shape != self.log_alpha.shape:
                 raise EngineError(f"emissions must be {self.log_alpha.shape}, got {log_b.shape}")
-            worst = log_b[active].min()
-            self.log_alpha = self.log_alpha + np.where(active, log_b, worst)
-        norm = float(logsumexp(self.log_alpha))
-        self.log_alpha = self.log_alpha - norm
+        log_alpha, norm = _updated(self.log_alpha, self.active(), log_b)
+        self.log_alpha = log_alpha
         self._started = True
         return norm
 
-    def _cached(self, name: str, compute):
-        if name not in self._derived:
-            self._derived[name] = compute()
-        return self._derived[name]
+    def _all(self) -> tuple:
+        """The posteriors and active states of the current ``log_alpha``, computed together once
+        (``_derived``)."""
+        if not self._derived:
+            self._derived = _derived(self.log_alpha, self._log_start_shape, self._log_prune)
+        return self._derived
 
     @property
     def posterior(self) -> np.ndarray:
         """``(C, K)`` joint posterior over primitives and states (``log_alpha`` is kept normalised; read-only)."""
-        def compute():
-            p = np.exp(self.log_alpha - self.log_alpha.max())
-            return p / p.sum()
-        return self._cached("posterior", compute)
+        return self._all()[0]
 
     @property
     def state_posterior(self) -> np.ndarray:
         """``(C, K)`` posterior over states given each primitive (rows sum to one, even for a primitive whose
-        own probability underflows; read-only)."""
-        def compute():
-            top = self.log_alpha.max(axis=1, keepdims=True)
-            # A primitive outside the belief keeps its start distribution's shape (it is never read).
-            la = np.where(np.isfinite(top), self.log_alpha, self._log_start_shape)
-            p = np.exp(la - la.max(axis=1, keepdims=True))
-            return p / p.sum(axis=1, keepdims=True)
-        return self._cached("state_posterior", compute)
+        own probability underflows; a primitive outside the belief keeps its start distribution's shape, and is
+        never read; read-only)."""
+        return self._all()[1]
 
     @property
     def class_posterior(self) -> np.ndarray:
         """``(C,)`` posterior over primitives (read-only)."""
-        def compute():
-            p = self.posterior.sum(axis=1)
-            return p / p.sum()
-        return self._cached("class_posterior", compute)
+        return self._all()[2]
+
+
+# The recursion's steps compiled: a track's belief is a few hundred numbers, and the same steps in numpy cost
+# 20-30 us a call in call overhead, once per track and frame (docs/engine.md, "Speed").
+
+@numba.njit(cache=True)
+def _predicted(log_alpha, trans):
+    """``log sum_j alpha(c, j) A_c[j, k]``, in probability space about each primitive's best state; a
+    primitive outside the belief (-inf throughout) stays so."""
+    C, K = log_alpha.shape
+    out = np.full((C, K), -np.inf)
+    p = np.empty(K)
+    for c in range(C):
+        top = log_alpha[c].max()
+        if not np.isfinite(top):
+            continue
+        for j in range(K):
+            p[j] = np.exp(log_alpha[c, j] - top)
+        for k in range(K):
+            acc = 0.0
+            for j in range(K):
+                acc += p[j] * trans[c, j, k]
+            out[c, k] = np.log(acc) + top if acc > 0.0 else -np.inf
+    return out
+
+
+@numba.njit(cache=True)
+def _updated(log_alpha, active, log_b):
+    """``log_alpha + log_b`` on the active states (the others take the worst active emission; no emission:
+    ``None``), normalised; returns it and the normaliser ``log sum exp``."""
+    C, K = log_alpha.shape
+    out = log_alpha.copy()
+    if log_b is not None:
+        worst = np.inf
+        for c in range(C):
+            for k in range(K):
+                if active[c, k]:
+                    worst = min(worst, log_b[c, k])
+        for c in range(C):
+            for k in range(K):
+                out[c, k] += log_b[c, k] if active[c, k] else worst
+    top = out.max()
+    shift = top if np.isfinite(top) else 0.0
+    acc = 0.0
+    for c in range(C):
+        for k in range(K):
+            acc += np.exp(out[c, k] - shift)
+    norm = np.log(acc) + shift if acc > 0.0 else -np.inf
+    for c in range(C):
+        for k in range(K):
+            out[c, k] -= norm
+    return out, norm
+
+
+@numba.njit(cache=True)
+def _derived(log_alpha, log_start_shape, log_prune):
+    """The joint posterior ``(C, K)``, the state posterior per primitive ``(C, K)``, the class posterior
+    ``(C,)`` and the states worth evaluating ``(C, K)`` (at least ``log_prune`` of their primitive's best, and
+    possible) of a log joint posterior."""
+    C, K = log_alpha.shape
+    post = np.empty((C, K))
+    state = np.empty((C, K))
+    cls = np.empty(C)
+    active = np.empty((C, K), dtype=np.bool_)
+    top = log_alpha.max()
+    total = 0.0
+    for c in range(C):
+        for k in range(K):
+            post[c, k] = np.exp(log_alpha[c, k] - top)
+            total += post[c, k]
+    for c in range(C):
+        row = log_alpha[c] if np.isfinite(log_alpha[c].max()) else log_start_shape[c]
+        best = row.max()
+        z = 0.0
+        for k in range(K):
+            state[c, k] = np.exp(row[k] - best)
+            z += state[c, k]
+        own = log_alpha[c].max()
+        mass = 0.0
+        for k in range(K):
+            state[c, k] /= z
+            post[c, k] /= total
+            mass += post[c, k]
+            active[c, k] = (log_alpha[c, k] >= own + log_prune) and np.isfinite(log_alpha[c, k])
+        cls[c] = mass
+    cls /= cls.sum()
+    return post, state, cls, active
 
 
 # The joint-space recognition's per-feature outlier share (``MotionDatabase.log_emissions``). Chosen on the

@@ -216,10 +216,11 @@ class Track:
         """Multiply the particles' weights by likelihoods ``(N,)`` (log)."""
         self.cloud.reweight(log_likelihood)
 
-    def settle(self, min_std: float) -> None:
-        """This frame's pose: the cloud's estimate, with its spread (at least ``min_std``) as recovery's room."""
-        self.pose = self.cloud.estimate()
-        self.pose_std = np.maximum(self.cloud.spread(), min_std)
+    def settle(self, position: np.ndarray, quat: np.ndarray, spread: np.ndarray, min_std: float) -> None:
+        """This frame's pose: the cloud's estimate (``particle_filter.settled``), with its spread (at least
+        ``min_std``) as recovery's room."""
+        self.pose = (position, quat)
+        self.pose_std = np.maximum(spread, min_std)
 
     def place(self, position: np.ndarray, quat: np.ndarray) -> None:
         """This frame's pose, given (no room for recovery to move it)."""
