@@ -37,6 +37,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+# The environment as the user gave it: importing ``harness`` sets compile settings of its own checkout
+# (``harness._full_vector_width``), which each engine's subprocess must choose for itself.
+_USER_ENV = dict(os.environ)
 # The engine before the speed work of issue 22 (tracks per primitive, both-handed database, 500 particles).
 DEFAULT_REFERENCE = "e3ee26d"
 
@@ -67,7 +70,7 @@ def _times(tree: Path, db_path: Path, obs_paths: list[Path], particles: int | No
     """ms per frame of ``Tracker.run`` (both passes where the engine has two) and of its causal loop (the
     whole run for an engine without per-stage timing) of the engine checked out in ``tree``, on the files, in a
     subprocess, with engine ``settings``."""
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = dict(_USER_ENV, PYTHONPATH=str(tree))
     done = subprocess.run([sys.executable, "-c", _TIMING_SCRIPT, str(db_path), str(particles or "default"), str(points),
                            json.dumps(settings), *map(str, obs_paths)], cwd=tree, env=env, check=True,
                           capture_output=True, text=True)
