@@ -36,7 +36,7 @@ def test_batched_weighing_equals_a_loop_over_tracks_and_classes(body, trained, c
     believe in several primitives: a track of one primitive has one term)."""
     obs, _, _ = clip
     tracker = Tracker(trained, body, TrackerConfig(particles=60, model_points=40, weigh_class_mass=0.9999,
-                                                   class_tracks=False),
+                                                   class_tracks=False, weigh_by_belief=True),
                       rng=np.random.default_rng(2))
     _stepped(tracker, obs, 6, rng=np.random.default_rng(2))
     tracks, source, scorer = tracker.tracks, tracker.source, tracker.scorer
@@ -48,7 +48,7 @@ def test_batched_weighing_equals_a_loop_over_tracks_and_classes(body, trained, c
     batched = source.log_likelihoods(frame, tracks)
     terms = []
     for track, got in zip(tracks, batched):
-        log_w, rows = track.class_mixtures(scorer.config.weigh_classes, scorer.config.weigh_class_mass)
+        log_w, rows = track.pose_mixture(scorer.config)
         mixes = PointDistributions.concatenate([scorer.model.dists.mixture(r) for r in rows])
         terms.append(len(log_w))
         rot = geometry.to_matrix(track.cloud.quats)
@@ -194,3 +194,38 @@ def test_the_given_pose_source_holds_the_pose_and_recovery_moves_only_the_angles
     np.testing.assert_array_equal(est.qpos[:, :3], base_pos)
     np.testing.assert_array_equal(est.filter_pos[1:], base_pos[1:])
     assert isinstance(tracker.tracks[0].recognizer, Recognizer) and tracker.tracks[0].cloud is None
+
+
+def _belief_over_two_primitives(trained, rng):
+    """A recognizer of the small database holding a random belief over its first two primitives only, with
+    pruning that leaves some states inactive."""
+    rec = Recognizer(trained, prune=1e-2).restrict([0, 1])
+    C, K = rec.log_alpha.shape
+    log_alpha = np.where(np.arange(C)[:, None] < 2, rng.normal(0.0, 3.0, (C, K)), -np.inf)
+    rec.log_alpha = log_alpha - logsumexp(log_alpha.ravel())
+    return rec
+
+
+def test_a_track_of_several_primitives_weighs_its_pose_under_every_primitive_alike(trained, rng):
+    """Without ``weigh_by_belief``, a track that believes several primitives weighs its particles under one
+    term: each possible primitive's own belief over its active states, the primitives weighed alike. The term
+    does not move when only the class belief does (each primitive's log-alpha shifted by a constant); with
+    ``weigh_by_belief`` it is the belief's top primitives, which do move."""
+    rec = _belief_over_two_primitives(trained, rng)
+    track = Track(0, "lead", rec)
+    log_w, rows = track.pose_mixture(TrackerConfig())
+    C, K = rec.log_alpha.shape
+    blocks = rows.reshape(C, K)
+    expect = np.where(rec.active(), rec.state_posterior, 0.0)[:2]
+    expect /= expect.sum(axis=1, keepdims=True)
+    np.testing.assert_array_equal(log_w, [0.0])
+    np.testing.assert_allclose(blocks[:2], 0.5 * expect, rtol=1e-12)
+    assert not blocks[2:].any()
+    assert (~rec.active()[:2] <= (blocks[:2] == 0)).all()      # inactive states weigh nothing
+    shifted = Track(1, "lead", _belief_over_two_primitives(trained, np.random.default_rng(0)))
+    shifted.recognizer.log_alpha = rec.log_alpha + np.array([-4.0, 2.0] + [0.0] * (C - 2))[:, None]
+    assert not np.allclose(shifted.recognizer.class_posterior, rec.class_posterior)
+    np.testing.assert_allclose(shifted.pose_mixture(TrackerConfig())[1], rows, rtol=1e-12, atol=1e-15)
+    by_belief = TrackerConfig(weigh_by_belief=True, weigh_class_mass=0.9999)
+    assert not np.allclose(shifted.pose_mixture(by_belief)[0], track.pose_mixture(by_belief)[0])
+

@@ -250,10 +250,10 @@ class ParticleTracks:
                 track.cloud = cloud
 
     def log_likelihoods(self, frame: Frame, tracks: list[Track]) -> list[np.ndarray]:
-        """Each track's particles' log-likelihoods ``(N_j,)`` under its own belief, a mixture over its likely
-        primitives (``Track.class_mixtures``): all tracks and primitives in one kernel call."""
+        """Each track's particles' log-likelihoods ``(N_j,)`` under its own belief (``Track.pose_mixture``): all
+        tracks and mixture terms in one kernel call."""
         cfg = self.scorer.config
-        mixtures = [t.class_mixtures(cfg.weigh_classes, cfg.weigh_class_mass) for t in tracks]
+        mixtures = [t.pose_mixture(cfg) for t in tracks]
         pose_index, state_index = mixture_pairs([len(t.cloud) for t in tracks], [len(w) for w, _ in mixtures])
         mixes = self.scorer.model.dists.mixtures(np.concatenate([rows for _, rows in mixtures]))
         pos = np.concatenate([t.cloud.positions for t in tracks])[pose_index]

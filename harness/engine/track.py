@@ -149,6 +149,28 @@ class Track:
         its own frame (``features.VELOCITY_SCHEME``), so the belief moves before it predicts the base."""
         self.recognizer.predict()
 
+    def pose_mixture(self, config: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
+        """What the track's particles are weighed under: log weights ``(k,)`` and the ``k`` terms' state
+        weights ``(k, C * K)``, each term to be moment-matched over its states (``PointDistributions.mixtures``).
+
+        A track of one primitive: that primitive's active states, one term. A track that believes several
+        primitives (streams): with ``weigh_by_belief``, the belief's most probable primitives
+        (``class_mixtures``); else one term in which every primitive counts alike, each with its own belief over
+        its states (``every_primitive``), so that a wrong class belief cannot steer the pose."""
+        if self.primitive is None and not config.weigh_by_belief:
+            return np.zeros(1), self.every_primitive()
+        return self.class_mixtures(config.weigh_classes, config.weigh_class_mass)
+
+    def every_primitive(self) -> np.ndarray:
+        """``(1, C * K)``: each primitive's belief over its active states (``state_posterior``, rows summing to
+        one), the primitives weighed alike (a primitive outside the belief, which is never evaluated, is left
+        out)."""
+        rows = np.where(self.recognizer.active(), self.recognizer.state_posterior, 0.0)
+        mass = rows.sum(axis=1)
+        possible = mass > 0
+        rows[possible] /= mass[possible, None] * possible.sum()
+        return rows.reshape(1, -1)
+
     def class_mixtures(self, max_classes: int, mass: float) -> tuple[np.ndarray, np.ndarray]:
         """The belief as a mixture over its most probable primitives (at most ``max_classes``, fewest covering
         ``mass`` of the class posterior), each primitive to be moment-matched over its active states
