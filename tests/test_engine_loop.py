@@ -2,6 +2,8 @@
 loop; the prune and merge rule; the spawn and its fallback; live stepping against ``run``; the padding of the
 frames before the first flows and before a track's first record; the given-pose source."""
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -222,7 +224,7 @@ def test_a_track_of_several_primitives_weighs_its_pose_under_every_primitive_ali
     np.testing.assert_allclose(blocks[:2], 0.5 * expect, rtol=1e-12)
     assert not blocks[2:].any()
     assert (~rec.active()[:2] <= (blocks[:2] == 0)).all()      # inactive states weigh nothing
-    shifted = Track(1, "lead", _belief_over_two_primitives(trained, np.random.default_rng(0)))
+    shifted = Track(1, "lead", copy.copy(rec))       # a shallow copy is a snapshot (Recognizer.log_alpha)
     shifted.recognizer.log_alpha = rec.log_alpha + np.array([-4.0, 2.0] + [0.0] * (C - 2))[:, None]
     assert not np.allclose(shifted.recognizer.class_posterior, rec.class_posterior)
     np.testing.assert_allclose(shifted.pose_mixture(TrackerConfig())[1], rows, rtol=1e-12, atol=1e-15)

@@ -265,7 +265,7 @@ class ParticleTracks:
         out, at = [], 0
         for (log_w, _), track in zip(mixtures, tracks):
             n, k = len(track.cloud), len(log_w)
-            # One term (a track of one primitive): its log-likelihood, as the sum over one term gives it.
+            # One term (a track of one primitive, or a stream's blob): the sum over one term, without its call.
             out.append(ll[at:at + n] + log_w[0] if k == 1 else
                        logsumexp(ll[at:at + n * k].reshape(k, n) + log_w[:, None], axis=0))
             at += n * k
