@@ -14,6 +14,12 @@ recognised correctly (the final class posterior of the same recursions, ``scorin
 true path and along its exact twin: a both-handed database (``database.mirrored``) should recognise the twin's
 mirrored body as well as the truth. ``--seed`` replaces the scenario's seed
 (development seeds for choices, the scenario's own for reporting).
+
+``--shifts 2 4 6`` also measures how far each run's answer is from the pose's errors: every primitive's
+evidence (``scoring.path_class_evidence``, a track that believed only it) along the true path and along the
+true path shifted sideways as a whole (camera x) by each of these centimetres, both ways. Per class it prints
+the true class's margin over the best other class at the true path (median and smallest), and in how many runs
+a shift of at most each size gives another class the lead.
 """
 
 from __future__ import annotations
@@ -32,10 +38,10 @@ ALTERNATIVES = ("turn+90", "turn180", "turn-90", "twin", "twin_upright")
 
 
 def _one(job) -> dict:
-    run, overrides = job
+    run, overrides, shifts = job
     from harness.engine.model import EngineModel
     from harness.engine.track import turned, twin
-    from harness.engine.scoring import path_recognition
+    from harness.engine.scoring import path_class_evidence, path_recognition
     from harness.evaluation import pipeline
     from harness.evaluation.scenario import tracker_config
 
@@ -52,8 +58,13 @@ def _one(job) -> dict:
         per_frame, posterior = path_recognition(model, tc, obs, pos, q)
         evidence[name] = float(per_frame.sum())
         recognised[name] = bool(inputs.db.classes_[posterior[-1].argmax()] == run.test_class)
+    margins = {}
+    true_class = list(inputs.db.classes_).index(run.test_class)
+    for shift in sorted({0.0, *shifts, *(-s for s in shifts)}):
+        class_evidence = path_class_evidence(model, tc, obs, pos + np.array([shift / 100.0, 0.0, 0.0]), quat)
+        margins[shift] = float(class_evidence[true_class] - np.delete(class_evidence, true_class).max())
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, **evidence,
-            "recognised": recognised}
+            "recognised": recognised, "margins": margins}
 
 
 def main() -> None:
@@ -61,12 +72,14 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     dev_runs.add_arguments(ap)
+    ap.add_argument("--shifts", type=float, nargs="*", default=[],
+                    help="sideways shifts (cm) of the true path at which every class is scored (module docstring)")
     args = ap.parse_args()
     runs = dev_runs.selected(args, pick=np.random.default_rng(0))
     overrides = settings_from_strings(args.set)
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
-        rows = list(pool.map(_one, [(r, overrides) for r in runs]))
+        rows = list(pool.map(_one, [(r, overrides, tuple(args.shifts)) for r in runs]))
     print(f"{'run':28s} {'condition':24s} " + " ".join(f"{a:>9s}" for a in ALTERNATIVES) + "   (truth minus "
           "alternative, tempered nats)")
     for r in rows:
@@ -92,7 +105,25 @@ def main() -> None:
         per_class = {c: [r for r in sub if r["class"] == c] for c in sorted({r["class"] for r in sub})}
         print(f"{cond}: {share(sub, 'truth')}% / {share(sub, 'twin')}%; "
               + ", ".join(f"{c} {share(rs, 'truth')}/{share(rs, 'twin')}%" for c, rs in per_class.items()))
+    if args.shifts:
+        print_margins(rows, sorted(args.shifts))
     print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s")
+
+
+def print_margins(rows: list[dict], shifts: list[float]) -> None:
+    """Per condition and class: the true class's margin over the best other class along the true path, and the
+    runs whose lead another class takes within each sideways shift (``--shifts``)."""
+    print("\nthe true class's margin over the best other class along the true path (nats), and runs where a "
+          "sideways shift of at most " + ", ".join(f"{s:g}" for s in shifts) + " cm gives another class the lead")
+    for cond in dict.fromkeys(r["condition"] for r in rows):
+        sub = [r for r in rows if r["condition"] == cond]
+        print(f"{cond}:")
+        for c in sorted({r["class"] for r in sub}):
+            runs = [r for r in sub if r["class"] == c]
+            at_truth = np.array([r["margins"][0.0] for r in runs])
+            turned = [sum(min(v for k, v in r["margins"].items() if abs(k) <= s) < 0 for r in runs) for s in shifts]
+            print(f"  {c:13s} median {np.median(at_truth):7.1f}, smallest {at_truth.min():7.1f}; turned over: "
+                  + ", ".join(f"{n}/{len(runs)}" for n in turned))
 
 
 if __name__ == "__main__":
