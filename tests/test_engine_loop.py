@@ -10,6 +10,7 @@ import pytest
 from engine_fixtures import synthetic_demos, synthetic_observation
 from harness import geometry
 from harness.engine import Tracker, TrackerConfig
+from harness.engine.likelihood import tempered, velocity_log_likelihoods
 from harness.engine.logsum import logsumexp
 from harness.engine.particle_filter import ParticleCloud, camera_pitch, upright_orientations
 from harness.engine.pose_source import GivenPose, ParticleTracks, mixture_pairs
@@ -196,6 +197,37 @@ def test_the_given_pose_source_holds_the_pose_and_recovery_moves_only_the_angles
     np.testing.assert_array_equal(est.qpos[:, :3], base_pos)
     np.testing.assert_array_equal(est.filter_pos[1:], base_pos[1:])
     assert isinstance(tracker.tracks[0].recognizer, Recognizer) and tracker.tracks[0].cloud is None
+
+
+def test_recognition_scores_velocities_given_positions_at_a_tracked_pose_and_flows_at_a_given_one(body, trained,
+                                                                                                clip):
+    """``recognise_velocities``: a tracked pose's recognition step folds in the tempered log-likelihoods of the
+    flows' velocities given their positions; at a given pose (no pose error) those of the flows themselves, so
+    the ground-truth-pose baseline does not depend on the setting."""
+    obs, base_pos, base_quat = clip
+    tracker = Tracker(trained, body, TrackerConfig(particles=20, model_points=40))
+    scorer = tracker.scorer
+    _stepped(tracker, obs, 3)
+    frame = tracker._frames.next(obs.flows[3])
+    rot = geometry.to_matrix(base_quat[3][None])
+    rec = Recognizer(trained, scorer.config.start_spread, scorer.config.prune)
+    states = np.flatnonzero(rec.active().ravel())
+    img = scorer.image(frame, np.repeat(rot, len(states), axis=0), np.repeat(base_pos[3][None], len(states), axis=0),
+                       scorer.model.dists, states)
+    n_eff = scorer.config.n_eff_recognition
+    velocities = tempered(velocity_log_likelihoods(frame.flows, img, scorer.flow_model(frame),
+                                                   held=frame.held(img.pix)), n_eff)
+    flows = scorer.frame_log_likelihood(frame, img, n_eff)
+    assert np.abs(velocities - flows).max() > 1.0          # the two rules differ on this frame
+    for pose_given, expected in ((False, velocities), (True, flows)):
+        r = copy.deepcopy(rec)
+        gained = scorer.recognise(frame, [r], base_pos[3][None], base_quat[3][None], pose_given=pose_given)[0]
+        log_b = np.zeros(rec.log_alpha.size)
+        log_b[states] = expected
+        np.testing.assert_allclose(gained, copy.deepcopy(rec).update(log_b.reshape(rec.log_alpha.shape)), rtol=1e-12)
+    runs = [Tracker(trained, body, TrackerConfig(particles=20, model_points=40, recognise_velocities=v)).run(
+        obs, base_pose=(base_pos, base_quat)) for v in (True, False)]
+    np.testing.assert_array_equal(runs[0].class_posterior, runs[1].class_posterior)
 
 
 def _belief_over_two_primitives(trained, rng):

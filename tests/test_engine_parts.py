@@ -12,7 +12,8 @@ from engine_fixtures import CLASSES, synthetic_demos
 from harness import geometry
 from harness.body import forward_points, forward_points_and_jacobians, sample_surface
 from harness.engine import MotionDatabase, Recognizer, motion_features, recognize_features
-from harness.engine.likelihood import FlowModel, flow_log_likelihoods, responsibilities, tempered
+from harness.engine.likelihood import (FlowModel, flow_log_likelihoods, responsibilities, tempered,
+                                       velocity_log_likelihoods)
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
                                             motion_mean, pose_mixture_log_density, propose, propose_many, settled,
                                             systematic_resample, upright_orientations)
@@ -168,7 +169,11 @@ def _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing, h
         if prior[hold].sum() > 0:
             weight[hold] = (1 - weight[~hold].sum()) * prior[hold] / prior[hold].sum()
     ll = np.array([np.log((1 - eps) * weight @ dens[m] + out_density) for m in range(M)])
-    return ll, resp_of(weight)
+    # The positions alone under the same weights: each point's position Gaussian where the joint had a density.
+    positions = np.array([[_gauss(flows[m, :2], img.pix[h, p], img.pix_cov[h, p] + noise**2 * np.eye(2))
+                           if dens[m, p] > 0 else 0.0 for p in range(P)] for m in range(M)])
+    given = ll - np.array([np.log((1 - eps) * weight @ positions[m] + eps / (W * Hh)) for m in range(M)])
+    return ll, resp_of(weight), given
 
 
 @pytest.mark.parametrize("iterations, smoothing, share_held", [(0, 0.0, 0.0), (2, 10.0, 0.0), (3, 0.5, 0.0),
@@ -183,9 +188,11 @@ def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations,
     noise, fps, W, Hh, eps = 1.5, 30.0, 640, 480, 0.05
     model = FlowModel(noise, fps, W, Hh, eps, weight_iterations=iterations, smoothing=smoothing)
     got = flow_log_likelihoods(flows, img, model, held=held)
+    velocities = velocity_log_likelihoods(flows, img, model, held=held)
     for h in range(H):
-        ll, resp = _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing, held)
+        ll, resp, given = _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing, held)
         np.testing.assert_allclose(got[h], ll, rtol=1e-9)
+        np.testing.assert_allclose(velocities[h], given, rtol=1e-9, atol=1e-9)
         one = ImageDistributions(*(getattr(img, k)[h:h + 1] for k in ("pix", "pix_cov", "flow", "flow_cov",
                                                                         "visibility")))
         r = responsibilities(flows, one, model, held=held[h:h + 1])
@@ -196,6 +203,9 @@ def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations,
     vmax = 0.25 * 640 * fps
     np.testing.assert_allclose(flow_log_likelihoods(flows, none, FlowModel(noise, fps, W, Hh, eps)),
                                np.log(eps / (W * Hh * np.pi * vmax**2)))
+    # ... and its velocity is an outlier's, uniform over the disc of image speeds.
+    np.testing.assert_allclose(velocity_log_likelihoods(flows, none, FlowModel(noise, fps, W, Hh, eps)),
+                               -np.log(np.pi * vmax**2))
 
 
 def test_the_kernels_elementary_functions_match_numpys():

@@ -18,6 +18,16 @@ makes a frame with 80 flows as decisive as 80 frames and collapses the filter an
 first plausible hypothesis. A frame's log-likelihood is therefore ``(min(M, n_eff) / M) sum_m log p(y_m|h)``:
 the mean per-flow log-likelihood counted as at most ``n_eff`` independent observations. An empty frame
 contributes zero: no evidence, the belief only moves.
+
+Recognition may score each flow's velocity given its position instead (``velocity_log_likelihoods``):
+
+    log p(du, dv | u, v, h) = log p(y | h) - log p(u, v | h),
+    p(u, v | h) = (1 - eps) sum_{p facing} w_p N(u,v; m_hp, S_hp) + eps U_image
+
+with the same mixture weights ``w_p``: the flows' positions then only say which points they come from, and
+the evidence is in how they move. The positions of a standing body's flows are explained by its base pose as
+much as by its posture, so a few centimetres of pose error move the positions' evidence between classes by
+more than the classes differ (``docs/engine.md``); the velocities given the positions do not carry that.
 """
 
 from __future__ import annotations
@@ -81,6 +91,33 @@ def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var
         points[n] = p
         n += 1
     return n
+
+
+@numba.njit(cache=True, fastmath=FAST, error_model="numpy")
+def _position_densities(flows, pix, pix_cov, pos_var, points, n, dens, arg, bits):
+    """The position factor of ``_densities``' densities alone, under the same ``n`` visible points ``points[:n]``
+    and gate: ``dens[i, m] = N(u_m, v_m; pix_p, pix_cov_p + pos_var I)`` for ``p = points[i]``, zero beyond the
+    gate. ``arg``, ``bits``: work arrays of ``M``."""
+    M = flows.shape[1]
+    us, vs = flows[0], flows[1]
+    scale = bits.view(np.float64)
+    for i in range(n):
+        p = points[i]
+        a, b, c = pix_cov[p, 0, 0] + pos_var, pix_cov[p, 0, 1], pix_cov[p, 1, 1] + pos_var
+        inv_det = 1.0 / (a * c - b * b)
+        ia, ib, ic = c * inv_det, -b * inv_det, a * inv_det
+        norm = np.sqrt(inv_det) / (2.0 * np.pi)
+        u0, v0 = pix[p, 0], pix[p, 1]
+        row = dens[i]
+        for m in range(M):
+            x = us[m] - u0
+            y = vs[m] - v0
+            d2 = ia * x * x + 2.0 * ib * x * y + ic * y * y
+            arg[m] = d2
+            mantissa, bits[m] = exp_parts(-0.5 * min(max(d2, 0.0), _GATE))   # padding flows (NaN): masked below
+            row[m] = norm * mantissa
+        for m in range(M):
+            row[m] = row[m] * scale[m] if arg[m] <= _GATE else 0.0
 
 
 @numba.njit(cache=True, fastmath=FAST, error_model="numpy")
@@ -171,6 +208,37 @@ def _flow_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibility
 
 
 @numba.njit(cache=True)
+def _velocity_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in,
+                            log_out, weight_iterations, smoothing, log_out_position):
+    """``_flow_loglik_kernel``'s per-flow values less the positions' own mixture under the same weights (module
+    docstring); ``log_out_position``: the log outlier density of a position alone."""
+    H, P = visibility.shape
+    M = flows.shape[1]
+    out = np.empty((H, n_flows))
+    work = _work(M, P)
+    dens, points, arg, bits, weight, total, _ = work
+    position = np.empty((P, M))
+    total_position = np.empty(M)
+    joint, given = np.empty(n_flows), np.empty(n_flows)
+    p_in = np.exp(log_in)
+    p_out = np.exp(log_out)
+    for h in range(H):
+        n = _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], held[h], pos_var, vel_var,
+                        p_in, p_out, weight_iterations, smoothing, work)
+        _position_densities(flows, pix[h], pix_cov[h], pos_var, points, n, position, arg, bits)
+        total_position[:] = 0.0
+        for i in range(n):
+            w = weight[i]
+            for m in range(M):
+                total_position[m] += w * position[i, m]
+        _per_flow(n, total, log_in, log_out, joint)
+        _per_flow(n, total_position, log_in, log_out_position, given)
+        for m in range(n_flows):
+            out[h, m] = joint[m] - given[m]
+    return out
+
+
+@numba.njit(cache=True)
 def _per_flow(n, total, log_in, log_out, out):
     """``out[m] = log((1 - eps) total[m] + eps U)`` from each flow's inlier density ``total`` (``_mixture``) over
     ``n`` visible points; every flow an outlier when none is visible."""
@@ -250,6 +318,16 @@ def flow_log_likelihoods(flows: np.ndarray, img: ImageDistributions, model: Flow
     """
     columns, dists, held, scalars = _prepared(flows, img, model, held)
     return _flow_loglik_kernel(*columns, *dists, held, *scalars)
+
+
+def velocity_log_likelihoods(flows: np.ndarray, img: ImageDistributions, model: FlowModel,
+                             held: np.ndarray | None = None) -> np.ndarray:
+    """``(H, M)`` log-likelihood of each flow's velocity given its position (the module docstring):
+    ``flow_log_likelihoods`` less the log density of the flow's position under the same mixture weights, gate
+    and outlier share (an outlier's position uniform over the image)."""
+    columns, dists, held, scalars = _prepared(flows, img, model, held)
+    log_out_position = np.log(model.outlier_prob) - np.log(model.width * model.height)
+    return _velocity_loglik_kernel(*columns, *dists, held, *scalars, log_out_position)
 
 
 def tempered(per_flow: np.ndarray, n_eff: float) -> np.ndarray:

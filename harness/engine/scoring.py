@@ -17,7 +17,8 @@ import numpy as np
 from harness import geometry
 from harness.engine.config import TrackerConfig
 from harness.engine.frame import Frame, observation_frames
-from harness.engine.likelihood import FlowModel, flow_log_likelihoods, responsibilities, tempered
+from harness.engine.likelihood import (FlowModel, flow_log_likelihoods, responsibilities, tempered,
+                                       velocity_log_likelihoods)
 from harness.engine.model import EngineModel
 from harness.engine.recognition import Recognizer
 from harness.engine.transform import ImageDistributions, PointDistributions, to_image
@@ -53,6 +54,14 @@ class Scorer:
         """``(H, M)`` log-likelihood of each of the frame's flows under each hypothesis."""
         return flow_log_likelihoods(frame.flows, img, self.flow_model(frame), held=frame.held(img.pix))
 
+    def recognition_per_flow(self, frame: Frame, img: ImageDistributions, pose_given: bool = False) -> np.ndarray:
+        """``(H, M)`` what recognition scores of each flow: its velocity given its position
+        (``recognise_velocities``) at a tracked pose; the flow itself (``per_flow``) otherwise, and at a given
+        pose, where the positions carry no pose error."""
+        if pose_given or not self.config.recognise_velocities:
+            return self.per_flow(frame, img)
+        return velocity_log_likelihoods(frame.flows, img, self.flow_model(frame), held=frame.held(img.pix))
+
     def frame_log_likelihood(self, frame: Frame, img: ImageDistributions, n_eff: float) -> np.ndarray:
         """``(H,)`` tempered log-likelihood of the frame under each hypothesis (``likelihood.tempered``)."""
         return tempered(self.per_flow(frame, img), n_eff)
@@ -62,10 +71,11 @@ class Scorer:
         return responsibilities(frame.flows, img, self.flow_model(frame), held=frame.held(img.pix))
 
     def recognise(self, frame: Frame, recognizers: list[Recognizer], positions: np.ndarray,
-                  quats: np.ndarray) -> np.ndarray:
-        """One recognition step for each recognizer at its base pose (camera frame, ``(J, 3)`` and ``(J, 4)``):
-        every active state's tempered emission, folded into it. All recognizers' states are projected and scored
-        in one kernel call. Returns the recursions' normalisers ``(J,)`` (0 for a frame without flows)."""
+                  quats: np.ndarray, pose_given: bool = False) -> np.ndarray:
+        """One recognition step for each recognizer at its base pose (camera frame, ``(J, 3)`` and ``(J, 4)``;
+        ``pose_given``: known, not tracked, ``recognition_per_flow``): every active state's tempered emission,
+        folded into it. All recognizers' states are projected and scored in one kernel call. Returns the
+        recursions' normalisers ``(J,)`` (0 for a frame without flows)."""
         if not frame.has_flows:
             return np.array([rec.update(None) for rec in recognizers])
         actives = [np.flatnonzero(rec.active().ravel()) for rec in recognizers]
@@ -73,7 +83,7 @@ class Scorer:
         rot = geometry.to_matrix(np.asarray(quats, dtype=float).reshape(-1, 4))
         img = self.image(frame, rot[owner], np.asarray(positions, dtype=float).reshape(-1, 3)[owner],
                          self.model.dists, np.concatenate(actives))
-        ll = self.frame_log_likelihood(frame, img, self.config.n_eff_recognition)
+        ll = tempered(self.recognition_per_flow(frame, img, pose_given), self.config.n_eff_recognition)
         out = np.empty(len(recognizers))
         at = 0
         for j, (rec, active) in enumerate(zip(recognizers, actives)):

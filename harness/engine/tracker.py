@@ -151,7 +151,8 @@ class Tracker:
         recursion's normaliser is new evidence for its track."""
         poses = [t.pose for t in self.tracks]
         evidence = self.scorer.recognise(frame, [t.recognizer for t in self.tracks],
-                                         np.array([p for p, _ in poses]), np.array([q for _, q in poses]))
+                                         np.array([p for p, _ in poses]), np.array([q for _, q in poses]),
+                                         pose_given=self.source.fixed)
         for track, gained, pose in zip(self.tracks, evidence, poses):
             track.log_evidence += gained
             track.remember(frame.index, pose)
