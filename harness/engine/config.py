@@ -47,8 +47,8 @@ class TrackerConfig:
     n_eff_recognition: float = 3.0           # ... for the recognition and the evidence (dev seeds; 6: 77%
                                              # against 90% on 60 development runs; on 240 runs of seeds
                                              # 101-103, 2: 14 fixed / 11 lost, 4.5: 8 / 18)
-    recognise_velocities: bool = True        # at a tracked pose, recognition scores each flow's velocity given
-                                             # its position, not both (likelihood.velocity_log_likelihoods; 240
+    recognise_velocities: bool = True        # recognition at a tracked pose scores velocities given positions
+                                             # (each flow's, likelihood.velocity_log_likelihoods; 240
                                              # development runs, seeds 101-103: `full` 86.7 -> 91.2%, 19 fixed /
                                              # 8 lost, smoothed 90.4 -> 93.3%, 15 / 8; half the positions' term
                                              # taken off: 15 / 12 and 9 / 6; docs/engine.md)
