@@ -10,7 +10,7 @@ from harness.body import body_origins, sample_surface
 from harness.body.model import mirror_angles
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
 from harness.motion.performer import CYCLIC
-from harness.engine.likelihood import flow_log_likelihoods, tempered
+from harness.engine.likelihood import flow_log_likelihoods, tempered, velocity_log_likelihoods
 from harness.engine.model import EngineModel
 from harness.engine.open_region import OpenRegion
 from harness.engine.particle_filter import camera_pitch, level_world, upright_orientations
@@ -51,10 +51,13 @@ def test_the_twin_is_the_depth_reflection_of_the_mirrored_body(body, rng):
     np.testing.assert_allclose(geometry.rotate(turned(quat, 1.1), np.array([0.0, 0, 1])), up, atol=1e-12)
 
 
-def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trained):
+@pytest.mark.parametrize("velocities", [True, False])
+def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trained, velocities):
     """Along a given pose path, a track's evidence is log p(y_1:T) of the HMMs with the classes and states
-    summed out: here an explicit forward algorithm over every (class, state), emissions scored state by state."""
-    cfg = TrackerConfig(model_points=40, prune=1e-300, start_spread=0.1)
+    summed out: here an explicit forward algorithm over every (class, state), emissions scored state by state
+    (the flows' velocities given their positions, or the flows, as ``recognise_velocities`` says)."""
+    cfg = TrackerConfig(model_points=40, prune=1e-300, start_spread=0.1, recognise_velocities=velocities)
+    per_flow = velocity_log_likelihoods if velocities else flow_log_likelihoods
     model = EngineModel.build(trained, body, cfg.model_points, cfg.model_seed)
     m = synthetic_demos(body, "wave", 1, np.random.default_rng(3), seconds=0.4)[0]
     obs, pos, quat = synthetic_observation(body, m, np.random.default_rng(4))
@@ -74,11 +77,11 @@ def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trai
             for k in range(K):
                 img = to_image(obs.intrinsics, geometry.to_matrix(quat[t])[None], pos[t][None],
                                model.dists.take([c * K + k]), occlusion=Scorer(model, cfg).occlusion)
-                ll = flow_log_likelihoods(flows, img, FlowModel(cfg.noise_px, obs.fps, obs.intrinsics.width,
-                                                                obs.intrinsics.height, cfg.outlier_prob,
-                                                                weight_iterations=cfg.weight_iterations,
-                                                                smoothing=cfg.weight_smoothing),
-                                          held=mask.held(img.pix))
+                ll = per_flow(flows, img, FlowModel(cfg.noise_px, obs.fps, obs.intrinsics.width,
+                                                    obs.intrinsics.height, cfg.outlier_prob,
+                                                    weight_iterations=cfg.weight_iterations,
+                                                    smoothing=cfg.weight_smoothing),
+                              held=mask.held(img.pix))
                 b[c, k] = tempered(ll, cfg.n_eff_recognition)[0]
         prior = start if first else np.einsum("cj,cjk->ck", alpha, trained.transmat_)
         joint = prior * np.exp(b)
@@ -116,9 +119,11 @@ def test_seen_from_the_front_the_true_heading_beats_its_twin(body, label):
     the front. Over the clip, a track that follows the true base pose gathers more evidence than one that
     follows its twin (depth-reflected and mirrored), under a database of all ten primitives. The twin differs
     by perspective and by which parts hide which (the engine's self-occlusion), so this fails if the likelihood
-    loses those cues."""
+    loses those cues. The cues are in where the flows are: the flows' likelihood (the particle weights') holds
+    them; recognition from the velocities given the positions does not see them (`recognise_velocities`,
+    docs/engine.md), so the evidence is scored with the flows' likelihood here."""
     db = MotionDatabase(cyclic=CYCLIC).fit(training_set(CLASSES_ALL, 3, seed=0, body=body))
-    cfg = TrackerConfig()
+    cfg = TrackerConfig(recognise_velocities=False)
     model = EngineModel.build(db, body, cfg.model_points, cfg.model_seed)
     for seed in (0, 1):
         rng = np.random.default_rng(100 + seed)

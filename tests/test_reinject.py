@@ -3,6 +3,8 @@ sum over every state of its primitive along the path it claims (its parent's rec
 the alternative's poses over it), less the log of the number of alternatives; the alternatives' transforms;
 the same seed gives the same newcomers."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from engine_fixtures import synthetic_demos, synthetic_observation
 from harness import geometry
 from harness.engine import Tracker, TrackerConfig
 from harness.engine.frame import observation_frames
+from harness.engine.likelihood import tempered
 from harness.engine.track import Alternative, alternatives, new_recognizer, turned, twin
 
 
@@ -40,7 +43,7 @@ def brute_force_evidence(tracker, obs, primitive, poses):
             continue
         pos, quat = poses[frame.index]
         img = scorer.image(frame, geometry.to_matrix(quat)[None], pos[None], model.dists)
-        log_b = scorer.frame_log_likelihood(frame, img, cfg.n_eff_recognition).reshape(C, K)[primitive]
+        log_b = tempered(scorer.recognition_per_flow(frame, img), cfg.n_eff_recognition).reshape(C, K)[primitive]
         top = log_b.max()
         joint = alpha * np.exp(log_b - top)
         total += np.log(joint.sum()) + top
@@ -49,7 +52,10 @@ def brute_force_evidence(tracker, obs, primitive, poses):
 
 
 def test_a_newcomers_evidence_is_the_forward_sum_along_the_path_it_claims(body, trained, clip):
-    tracker = Tracker(trained, body, CONFIG, rng=np.random.default_rng(2))
+    # With recognition from the velocities given the positions no alternative beats its parent on this clip (the
+    # evidence hardly depends on the pose there, seeds 2-13 tried); the bookkeeping is the same for either rule.
+    config = replace(CONFIG, recognise_velocities=False)
+    tracker = Tracker(trained, body, config, rng=np.random.default_rng(2))
     tracker.reset(clip.intrinsics, clip.fps)
     spawned, newcomers = set(), []
     for t, flows in enumerate(clip.flows):
@@ -61,7 +67,7 @@ def test_a_newcomers_evidence_is_the_forward_sum_along_the_path_it_claims(body, 
         newcomers += [(tr, list(tr.history), tr.log_evidence) for tr in tracker.tracks
                       if tr.id not in before and tr.parent in spawned]
     assert newcomers, "no alternative beat its parent on this clip: the test needs one"
-    penalty = np.log(len(alternatives(CONFIG)))
+    penalty = np.log(len(alternatives(config)))
     for new, history, evidence in newcomers[:4]:
         window = {s.index: s.pose for s in history if s.index is not None and s.index >= history[1].index}
         parent_path = {}
