@@ -60,7 +60,7 @@ def _one(job) -> dict:
         recognised[name] = bool(inputs.db.classes_[posterior[-1].argmax()] == run.test_class)
     margins = {}
     true_class = list(inputs.db.classes_).index(run.test_class)
-    for shift in sorted({0.0, *shifts, *(-s for s in shifts)}):
+    for shift in sorted({0.0, *shifts, *(-s for s in shifts)}) if shifts else ():
         class_evidence = path_class_evidence(model, tc, obs, pos + np.array([shift / 100.0, 0.0, 0.0]), quat)
         margins[shift] = float(class_evidence[true_class] - np.delete(class_evidence, true_class).max())
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, **evidence,

@@ -60,12 +60,18 @@ class FrameRecord:
         return joint, self.tracks[int(np.argmax(evidence))]
 
     def log_class_posterior(self) -> np.ndarray:
-        """``log`` of the mixture's class posterior ``(C,)``, summed in log space: with a track per primitive
-        the classes' evidence differs by hundreds of nats, which probabilities would round to 0 and 1."""
-        log_share = log_softmax(np.array([t.log_evidence for t in self.tracks]))
-        with np.errstate(divide="ignore"):
-            log_class = np.log(np.array([t.joint_posterior.sum(axis=1) for t in self.tracks]))
-        return logsumexp(log_share[:, None] + log_class, axis=0)
+        """``log`` of the mixture's class posterior ``(C,)`` (``mixed_log_class_posterior`` by evidence)."""
+        return mixed_log_class_posterior(self.tracks, np.array([t.log_evidence for t in self.tracks]))
+
+
+def mixed_log_class_posterior(tracks: tuple[TrackRecord, ...], log_weights: np.ndarray) -> np.ndarray:
+    """``log`` of the tracks' class posteriors mixed with weights ``softmax(log_weights)``, ``(C,)``, summed in
+    log space: with a track per primitive the classes' evidence differs by hundreds of nats, which
+    probabilities would round to 0 and 1."""
+    log_share = log_softmax(log_weights)
+    with np.errstate(divide="ignore"):
+        log_class = np.log(np.array([t.joint_posterior.sum(axis=1) for t in tracks]))
+    return logsumexp(log_share[:, None] + log_class, axis=0)
 
 
 def with_known_base(qpos: np.ndarray, known_pose: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
