@@ -161,3 +161,22 @@ def test_online_labels_report_a_change_after_min_frames_of_lead():
     assert online_labels(post, 3).tolist() == [0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 0]
     with pytest.raises(EngineError, match="min_frames"):
         online_labels(post, 0)
+
+
+def test_a_stream_track_prunes_by_stream_prune_so_a_primitive_entered_mid_stream_keeps_its_spread_states():
+    """``new_recognizer`` gives a stream's track the switching recursion with ``stream_prune``, a clip's track the
+    isolated one with ``prune``. With a start distribution of 0.95 on one state and the spread's 0.05 over 40
+    states (1.25e-3 each, relative to the best), 1e-2 drops the spread states while 1e-4 keeps them all: the entry
+    of a primitive mid-stream must be followable."""
+    from harness.engine.config import TrackerConfig
+    from harness.engine.track import new_recognizer
+
+    K = 40
+    db = two_primitives(K)
+    db.startprob_ = np.full((2, K), 0.0)
+    db.startprob_[:, 0] = 1.0
+    stream = new_recognizer(db, TrackerConfig(primitive_switch=0.02, start_spread=0.05, prune=1e-2, stream_prune=1e-4))
+    clip = new_recognizer(db, TrackerConfig(start_spread=0.05, prune=1e-2, stream_prune=1e-4))
+    assert isinstance(stream, SwitchingRecognizer) and not isinstance(clip, SwitchingRecognizer)
+    assert stream.active().all()
+    assert clip.active().sum() == 2 and clip.active()[:, 0].all()

@@ -90,7 +90,7 @@ def alternatives(config: TrackerConfig) -> list[Alternative]:
 def new_recognizer(db: MotionDatabase, config: TrackerConfig) -> Recognizer:
     """A track's belief over (primitive, state): the isolated recursion, or the switching one for streams."""
     if config.primitive_switch > 0:
-        return SwitchingRecognizer(db, config.primitive_switch, config.start_spread, config.prune)
+        return SwitchingRecognizer(db, config.primitive_switch, config.start_spread, config.stream_prune)
     return Recognizer(db, config.start_spread, config.prune)
 
 
