@@ -42,10 +42,10 @@ def _one(job) -> tuple[str, np.ndarray]:
         if not rec.tracks:
             continue
         _, lead = rec.decision()
-        primitive = lead.origin.split("/")[0]
-        errors = np.array([abs(np.log(t.position[2] / truth.base_pos_cam[rec.index, 2])) for t in rec.tracks
-                           if t.origin.split("/")[0] == primitive])
-        lead_error = abs(np.log(lead.position[2] / truth.base_pos_cam[rec.index, 2]))
+        # A track of one primitive is named after it (``walk/lead``, ``walk/lead>twin@12``).
+        siblings = [t for t in rec.tracks if t.origin.split("/")[0] == lead.origin.split("/")[0]]
+        errors = np.abs(np.log(np.array([t.position[2] for t in siblings]) / truth.base_pos_cam[rec.index, 2]))
+        lead_error = errors[next(i for i, t in enumerate(siblings) if t is lead)]
         rows.append((rec.index / max(len(obs) - 1, 1), lead_error, errors.mean(), errors.min(), len(errors)))
     return run.condition_label, np.array(rows).reshape(-1, 5)
 
