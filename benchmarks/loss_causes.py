@@ -53,10 +53,11 @@ def part_of(segment: str) -> str:
     return "trunk"
 
 
-def evidence_by_flow(model, config, obs, positions, quats, primitive) -> list:
+def evidence_by_flow(model, config, obs, positions, quats, primitive, pose_given: bool = False) -> list:
     """Per frame, ``(M,)`` each flow's share of the evidence a track of ``primitive`` following the path gains:
     the tempered per-flow log-likelihoods of the active states, weighted by their posterior responsibilities
-    after the frame (empty for a frame without flows)."""
+    after the frame (empty for a frame without flows). ``pose_given``: the recursion scores the flows as at a
+    given pose (``Scorer.recognise``), as the shares do."""
     from harness import geometry
     from harness.engine.frame import observation_frames
     from harness.engine.recognition import Recognizer
@@ -84,7 +85,7 @@ def evidence_by_flow(model, config, obs, positions, quats, primitive) -> list:
             w = np.exp(w - w.max())
             share = (w / w.sum()) @ per_flow * scale
         out.append(share)
-        scorer.recognise(frame, [rec], positions[t], quats[t])
+        scorer.recognise(frame, [rec], positions[t], quats[t], pose_given=pose_given)
     return out
 
 

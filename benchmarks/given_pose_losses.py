@@ -1,0 +1,232 @@
+"""Why the engine handed the true baselink (``gt_base``) loses real captures: which class wins along the true
+path, which body part's flows hand it the win, and how the base's own motion enters.
+
+    MUJOCO_GL=egl python benchmarks/given_pose_losses.py [--scenario scenarios/sim2real.yaml] [--mocap-dir DIR]
+        [--base database given given+features] [--floor 0.2 0.4 ...] [--class kick ...] [--jobs 2]
+
+Every run of the scenario is scored as ``gt_base`` scores it: at the true base pose of every frame, each flow
+under each state (``Scorer.recognise(pose_given=True)``), one recursion per primitive; the answer is the primitive
+with the most evidence (the all-primitive recursion's argmax: the primitives do not switch). ``--base`` says
+where a flow's predicted velocity takes the base's own motion from:
+
+- ``database`` (what ``gt_base`` does): each state's base velocity features, so a flow's velocity also says
+  how fast the body travels;
+- ``given``: the true base path's velocity (central differences of the camera-frame base pose), every state's
+  base velocity set to zero with no variance: the flows then carry only the body's motion relative to its base;
+- ``given+features``: as ``given``, and each state also scores the six base velocity features (base frame) once
+  per frame in joint space, with the joint-space method's per-feature outlier share
+  (``MotionDatabase.log_emissions``): the base's travel as class evidence counted once, not once per flow.
+
+``--floor S ...``: also ``database`` with every state's base linear velocity variance raised to at least ``S^2``
+(m/s; after training, without refitting), one variant per value.
+
+For the lost runs of the first ``--base``, the gap (the winner minus the true primitive, along the true path) is
+split by body part with ``loss_causes.evidence_by_flow`` (ground-truth marker ids: a diagnosis only). Last, per
+class, the net horizontal travel of the tested demonstrations (m/s over the clip) beside the procedural
+performer's takes (seed 1), which the procedural database learned from.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import dataclasses
+import os
+import time
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+import loss_causes
+from harness import geometry
+from harness.engine.features import BASE_ANGULAR, BASE_LINEAR, N_FEATURES
+from harness.engine.recognition import FEATURE_OUTLIER, Recognizer
+
+BASES = ("database", "given", "given+features")
+BASE_FEATURES = np.r_[BASE_LINEAR, BASE_ANGULAR]
+
+
+def base_motion(pos: np.ndarray, quat: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(T, 3)`` linear and angular velocity of a camera-frame base path (m/s, rad/s, camera frame): central
+    differences (one-sided at the ends); the angular one from ``R_{t+1} R_t^T``, averaged onto the frames."""
+    v = np.gradient(pos, axis=0) * fps
+    rot = geometry.to_matrix(quat)
+    step = Rotation.from_matrix(np.einsum("tij,tkj->tik", rot[1:], rot[:-1])).as_rotvec() * fps
+    w = np.vstack([step[:1], 0.5 * (step[1:] + step[:-1]), step[-1:]]) if len(step) else np.zeros_like(v)
+    return v, w
+
+
+def carried_base(obs, pos: np.ndarray, v: np.ndarray, w: np.ndarray):
+    """The observation with the base's motion given as the camera's: a point ``X`` of a base moving at ``v``,
+    ``w`` (camera frame) moves relative to the camera at ``v + w x (X - t)``, which ``to_image``'s
+    ``-(v_c + w_c x X)`` gives with ``v_c = -(v - w x t)``, ``w_c = -w``. ``pos``, ``v``, ``w`` are relative to
+    the camera already (a moving camera's own motion is inside them)."""
+    motion = np.concatenate([-(v - np.cross(w, pos)), -w], axis=1)
+    return dataclasses.replace(obs, camera_motion=motion)
+
+
+def without_base_velocity(model):
+    """The engine model of the same database (and model points) with every state's base velocity at zero, with
+    no variance."""
+    db = copy.deepcopy(model.db)
+    db.means_[..., BASE_FEATURES] = 0.0
+    db.covars_[..., BASE_FEATURES] = 1e-12
+    return _rebuilt(model, db)
+
+
+def with_floor(model, speed: float):
+    """The engine model with every state's base linear velocity variance at least ``speed**2``."""
+    db = copy.deepcopy(model.db)
+    db.covars_[..., BASE_LINEAR] = np.maximum(db.covars_[..., BASE_LINEAR], speed ** 2)
+    return _rebuilt(model, db)
+
+
+def _rebuilt(model, db):
+    """``model`` with database ``db`` (the same model points): its point distributions carried again."""
+    from harness.engine.model import body_extent
+    from harness.engine.transform import database_point_distributions
+
+    C, K, D = db.means_.shape
+    dists = database_point_distributions(db, model.body, model.points, model.spread)
+    return dataclasses.replace(model, db=db, dists=dists, db_means=db.means_.reshape(C * K, D),
+                               db_covars=db.covars_.reshape(C * K, D), body_extent=body_extent(dists))
+
+
+class WithExtra(Recognizer):
+    """A recursion that adds ``extra`` ``(C, K)`` (set before each frame) to the flows' emissions."""
+
+    extra: np.ndarray | None = None
+
+    def update(self, log_b):
+        return super().update(log_b if log_b is None or self.extra is None else log_b + self.extra)
+
+
+def class_evidence(model, db, config, obs, pos, quat, base_features: np.ndarray | None) -> np.ndarray:
+    """``(C,)`` each primitive's evidence along the given path, flows scored at the given pose; with
+    ``base_features`` ``(T, 106)``, the base velocity features' joint-space emissions added per frame."""
+    from harness.engine.frame import observation_frames
+    from harness.engine.scoring import Scorer
+
+    scorer = Scorer(model, config)
+    C = model.n_classes
+    recs = [WithExtra(model.db, config.start_spread, config.prune).restrict([c]) for c in range(C)]
+    keep = np.zeros(N_FEATURES, dtype=bool)
+    keep[BASE_FEATURES] = True
+    log_base = None if base_features is None else db.log_emissions(base_features, FEATURE_OUTLIER, keep)
+    total, started = np.zeros(C), False
+    for frame in observation_frames(obs, config):
+        t = frame.index
+        if not (started or frame.has_flows):
+            continue
+        for c, rec in enumerate(recs):
+            rec.predict()
+            if log_base is not None:
+                rec.extra = np.where(np.arange(C)[:, None] == c, log_base[t], 0.0)
+        started = True
+        total += scorer.recognise(frame, recs, np.repeat(pos[t][None], C, axis=0), np.repeat(quat[t][None], C, axis=0),
+                                  pose_given=True)
+    return total
+
+
+def _one(job) -> dict:
+    run, bases, floors = job
+    from harness.evaluation import pipeline
+
+    inputs = pipeline.run_inputs(run)
+    tracker = inputs.tracker()
+    model, config, truth, obs = tracker.model, tracker.config, inputs.truth, inputs.obs
+    pos, quat = truth.base_pos_cam, truth.base_quat_cam
+    classes = list(model.db.classes_)
+    v, w = base_motion(pos, quat, obs.fps)
+    rot = geometry.to_matrix(quat)
+    features = np.zeros((len(pos), N_FEATURES))
+    features[:, BASE_LINEAR] = np.einsum("tji,tj->ti", rot, v)
+    features[:, BASE_ANGULAR] = np.einsum("tji,tj->ti", rot, w)
+    bare = without_base_velocity(model) if any(b != "database" for b in bases) else None
+    carried = carried_base(obs, pos, v, w)
+    row = {"key": run.key, "class": run.test_class, "answers": {}}
+    for base in bases:
+        if base == "database":
+            ev = class_evidence(model, model.db, config, obs, pos, quat, None)
+        else:
+            ev = class_evidence(bare, model.db, config, carried, pos, quat,
+                                features if base == "given+features" else None)
+        row["answers"][base] = classes[int(np.argmax(ev))]
+    for speed in floors:
+        ev = class_evidence(with_floor(model, speed), model.db, config, obs, pos, quat, None)
+        row["answers"][f"database, floor {speed:g} m/s"] = classes[int(np.argmax(ev))]
+    first = row["answers"][bases[0]]
+    if first != run.test_class:
+        m, o = (model, obs) if bases[0] == "database" else (bare, carried)
+        won = loss_causes.evidence_by_flow(m, config, o, pos, quat, classes.index(first), pose_given=True)
+        true = loss_causes.evidence_by_flow(m, config, o, pos, quat, classes.index(run.test_class), pose_given=True)
+        segment = np.array([loss_causes.part_of(inputs.body.model.body(int(b)).name) for b in truth.markers.body]
+                           + ["outlier"])
+        gap = dict.fromkeys(loss_causes.PARTS, 0.0)
+        for a, b, ids in zip(won, true, truth.marker_ids):
+            for part, d in zip(segment[np.asarray(ids, dtype=int)], a - b):
+                gap[part] += float(d)
+        row["by_part"] = gap
+    row["travel"] = travel(inputs.motion)
+    return row
+
+
+def travel(motion) -> float:
+    """Net horizontal travel of a demonstration's base over its duration (m/s)."""
+    xy = motion.qpos[:, :2]
+    return float(np.linalg.norm(xy[-1] - xy[0]) / (len(xy) / motion.fps))
+
+
+def main() -> None:
+    from harness.evaluation.runner import plan
+    from harness.evaluation.scenario import load_scenario, resolve_capture
+    from harness.motion.realism import procedural_set
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="scenarios/sim2real.yaml")
+    ap.add_argument("--mocap-dir", default=os.environ.get("HARNESS_MOCAP_DIR", "../shared/mocap/cmu"))
+    ap.add_argument("--base", nargs="+", default=list(BASES), choices=BASES)
+    ap.add_argument("--floor", type=float, nargs="*", default=[], help="base linear velocity floors (m/s)")
+    ap.add_argument("--class", dest="classes", nargs="*", default=None, help="only runs of these test classes")
+    ap.add_argument("--cache", default="results/cache")
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args()
+    os.environ["HARNESS_MOCAP_DIR"] = args.mocap_dir         # the workers resolve the capture set again
+    scenario = resolve_capture(load_scenario(args.scenario), args.mocap_dir)
+    runs = [r for r in plan(scenario, args.cache) if args.classes is None or r.test_class in args.classes]
+    if not runs:
+        raise SystemExit("no runs selected (check --class and the scenario's classes)")
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
+        rows = list(pool.map(_one, [(r, tuple(args.base), tuple(args.floor)) for r in runs]))
+
+    labels = list(dict.fromkeys(r["class"] for r in rows))
+    for base in rows[0]["answers"]:
+        right = [r for r in rows if r["answers"][base] == r["class"]]
+        lost = Counter((r["class"], r["answers"][base]) for r in rows if r["answers"][base] != r["class"])
+        print(f"base velocity from {base}: {len(right)} of {len(rows)} right; per class "
+              + ", ".join(f"{c} {sum(r['class'] == c for r in right)}/{sum(r['class'] == c for r in rows)}"
+                          for c in labels))
+        print("  lost as: " + ", ".join(f"{t}->{a} {n}" for (t, a), n in lost.most_common()))
+    split = [r for r in rows if "by_part" in r]
+    if split:
+        print(f"\nthe gap (winner minus the true primitive along the true path, base from {args.base[0]}) by body part, "
+              "median per true class (tempered nats; positive: the part's flows favour the winner)")
+        print(f"  {'class':>12s} {'runs':>4s} " + " ".join(f"{p:>10s}" for p in loss_causes.PARTS[:-1]))
+        for c in labels:
+            sub = [r for r in split if r["class"] == c]
+            if sub:
+                print(f"  {c:>12s} {len(sub):4d} " + " ".join(f"{np.median([r['by_part'][p] for r in sub]):10.1f}"
+                                                            for p in loss_causes.PARTS[:-1]))
+    print("\nnet horizontal travel over the clip, median m/s: the tested demonstrations / the procedural takes")
+    for c in labels:
+        proc = [travel(m) for m in procedural_set(c, 8, 1)]
+        print(f"  {c:>12s} {np.median([r['travel'] for r in rows if r['class'] == c]):5.2f} / {np.median(proc):5.2f}")
+    print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
