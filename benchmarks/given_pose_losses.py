@@ -20,7 +20,9 @@ where a flow's predicted velocity takes the base's own motion from:
 ``--floor S ...``: also ``database`` with every state's base linear velocity variance raised to at least ``S^2``
 (m/s; after training, without refitting), one variant per value.
 
-For the lost runs of the first ``--base``, the gap (the winner minus the true primitive, along the true path) is
+On a scenario that tests captures, each variant's count is also split into the development demonstrations (the
+performer's calibration demonstrations, ``realism.calibration_split``: what settings are chosen on) and the report
+ones. For the lost runs of the first ``--base``, the gap (the winner minus the true primitive, along the true path) is
 split by body part with ``loss_causes.evidence_by_flow`` (ground-truth marker ids: a diagnosis only). Last, per
 class, the net horizontal travel of the tested demonstrations (m/s over the clip) beside the procedural
 performer's takes (seed 1), which the procedural database learned from.
@@ -147,7 +149,7 @@ def _one(job) -> dict:
     features[:, BASE_ANGULAR] = np.einsum("tji,tj->ti", rot, w)
     bare = without_base_velocity(model) if any(b != "database" for b in bases) else None
     carried = carried_base(obs, pos, v, w)
-    row = {"key": run.key, "class": run.test_class, "answers": {}}
+    row = {"key": run.key, "class": run.test_class, "answers": {}, "demo": (inputs.motion.demo, inputs.motion.label)}
     for base in bases:
         if base == "database":
             ev = class_evidence(model, model.db, config, obs, pos, quat, None)
@@ -183,7 +185,8 @@ def travel(motion) -> float:
 def main() -> None:
     from harness.evaluation.runner import plan
     from harness.evaluation.scenario import load_scenario, resolve_capture
-    from harness.motion.realism import procedural_set
+    from harness.motion.captures import load_capture_set
+    from harness.motion.realism import calibration_split, procedural_set
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="scenarios/sim2real.yaml")
@@ -204,12 +207,20 @@ def main() -> None:
         rows = list(pool.map(_one, [(r, tuple(args.base), tuple(args.floor)) for r in runs]))
 
     labels = list(dict.fromkeys(r["class"] for r in rows))
+    development = None
+    if scenario.test.split == "captures":
+        # The performer's calibration demonstrations: what settings are chosen on (realism.calibration_split).
+        development = {(m.demo, m.label) for m in calibration_split(load_capture_set(args.mocap_dir))[0]}
     for base in rows[0]["answers"]:
         right = [r for r in rows if r["answers"][base] == r["class"]]
         lost = Counter((r["class"], r["answers"][base]) for r in rows if r["answers"][base] != r["class"])
         print(f"base velocity from {base}: {len(right)} of {len(rows)} right; per class "
               + ", ".join(f"{c} {sum(r['class'] == c for r in right)}/{sum(r['class'] == c for r in rows)}"
                           for c in labels))
+        if development is not None:
+            dev = [r for r in rows if tuple(r["demo"]) in development]
+            print(f"  development {sum(r in right for r in dev)} of {len(dev)}, report "
+                  f"{sum(r in right for r in rows if r not in dev)} of {len(rows) - len(dev)}")
         print("  lost as: " + ", ".join(f"{t}->{a} {n}" for (t, a), n in lost.most_common()))
     split = [r for r in rows if "by_part" in r]
     if split:
