@@ -2,7 +2,8 @@
 path, which body part's flows hand it the win, and how the base's own motion enters.
 
     MUJOCO_GL=egl python benchmarks/given_pose_losses.py [--scenario scenarios/sim2real.yaml] [--mocap-dir DIR]
-        [--base database given given+features] [--floor 0.2 0.4 ...] [--class kick ...] [--jobs 2]
+        [--base database given given+features] [--floor 0.2 0.4 ...] [--set KEY=VALUE ...] [--class kick ...]
+        [--jobs 2]
 
 Every run of the scenario is scored as ``gt_base`` scores it: at the true base pose of every frame, each flow
 under each state (``Scorer.recognise(pose_given=True)``), one recursion per primitive; the answer is the primitive
@@ -18,7 +19,8 @@ where a flow's predicted velocity takes the base's own motion from:
   (``MotionDatabase.log_emissions``): the base's travel as class evidence counted once, not once per flow.
 
 ``--floor S ...``: also ``database`` with every state's base linear velocity variance raised to at least ``S^2``
-(m/s; after training, without refitting), one variant per value.
+(m/s; after training, without refitting), one variant per value. ``--set``: also ``database`` under each of these
+engine settings (``TrackerConfig`` fields, one variant each).
 
 On a scenario that tests captures, each variant's count is also split into the development demonstrations (the
 performer's calibration demonstrations, ``realism.calibration_split``: what settings are chosen on) and the report
@@ -134,7 +136,8 @@ def class_evidence(model, db, config, obs, pos, quat, base_features: np.ndarray 
 
 
 def _one(job) -> dict:
-    run, bases, floors = job
+    run, bases, floors, settings = job
+    from harness.engine.config import settings_from_strings
     from harness.evaluation import pipeline
 
     inputs = pipeline.run_inputs(run)
@@ -160,6 +163,10 @@ def _one(job) -> dict:
     for speed in floors:
         ev = class_evidence(with_floor(model, speed), model.db, config, obs, pos, quat, None)
         row["answers"][f"database, floor {speed:g} m/s"] = classes[int(np.argmax(ev))]
+    for item in settings:
+        changed = dataclasses.replace(config, **settings_from_strings([item]))
+        ev = class_evidence(model, model.db, changed, obs, pos, quat, None)
+        row["answers"][f"database, {item}"] = classes[int(np.argmax(ev))]
     first = row["answers"][bases[0]]
     if first != run.test_class:
         m, o = (model, obs) if bases[0] == "database" else (bare, carried)
@@ -193,6 +200,8 @@ def main() -> None:
     ap.add_argument("--mocap-dir", default=os.environ.get("HARNESS_MOCAP_DIR", "../shared/mocap/cmu"))
     ap.add_argument("--base", nargs="+", default=list(BASES), choices=BASES)
     ap.add_argument("--floor", type=float, nargs="*", default=[], help="base linear velocity floors (m/s)")
+    ap.add_argument("--set", dest="settings", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="engine settings, one variant each")
     ap.add_argument("--class", dest="classes", nargs="*", default=None, help="only runs of these test classes")
     ap.add_argument("--cache", default="results/cache")
     ap.add_argument("--jobs", type=int, default=2)
@@ -204,7 +213,8 @@ def main() -> None:
         raise SystemExit("no runs selected (check --class and the scenario's classes)")
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
-        rows = list(pool.map(_one, [(r, tuple(args.base), tuple(args.floor)) for r in runs]))
+        rows = list(pool.map(_one, [(r, tuple(args.base), tuple(args.floor), tuple(args.settings))
+                               for r in runs]))
 
     labels = list(dict.fromkeys(r["class"] for r in rows))
     development = None
