@@ -26,8 +26,9 @@ On a scenario that tests captures, each variant's count is also split into the d
 performer's calibration demonstrations, ``realism.calibration_split``: what settings are chosen on) and the report
 ones. For the lost runs of the first ``--base``, the gap (the winner minus the true primitive, along the true path) is
 split by body part with ``loss_causes.evidence_by_flow`` (ground-truth marker ids: a diagnosis only). Last, per
-class, the net horizontal travel of the tested demonstrations (m/s over the clip) beside the procedural
-performer's takes (seed 1), which the procedural database learned from.
+class, how the base moves in the tested demonstrations beside the procedural performer's takes (24, seed 1), which
+the procedural database learned from: the net horizontal travel (m/s over the clip), and the base-frame forward
+velocity's 10-90% range and the vertical velocity's standard deviation over all frames (``motion_features``).
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ from scipy.spatial.transform import Rotation
 
 import loss_causes
 from harness import geometry
-from harness.engine.features import BASE_ANGULAR, BASE_LINEAR, N_FEATURES
+from harness.engine.features import BASE_ANGULAR, BASE_LINEAR, N_FEATURES, motion_features
 from harness.engine.recognition import FEATURE_OUTLIER, Recognizer
 
 BASES = ("database", "given", "given+features")
@@ -180,6 +181,7 @@ def _one(job) -> dict:
                 gap[part] += float(d)
         row["by_part"] = gap
     row["travel"] = travel(inputs.motion)
+    row["base_velocity"] = motion_features(inputs.motion)[:, BASE_LINEAR].tolist()
     return row
 
 
@@ -242,10 +244,18 @@ def main() -> None:
             if sub:
                 print(f"  {c:>12s} {len(sub):4d} " + " ".join(f"{np.median([r['by_part'][p] for r in sub]):10.1f}"
                                                             for p in loss_causes.PARTS[:-1]))
-    print("\nnet horizontal travel over the clip, median m/s: the tested demonstrations / the procedural takes")
+    print("\nthe base's motion, tested demonstrations / procedural takes: net horizontal travel (median, m/s), "
+          "base-frame forward velocity 10-90% (m/s), vertical velocity standard deviation (m/s)")
     for c in labels:
-        proc = [travel(m) for m in procedural_set(c, 8, 1)]
-        print(f"  {c:>12s} {np.median([r['travel'] for r in rows if r['class'] == c]):5.2f} / {np.median(proc):5.2f}")
+        mine = [r for r in rows if r["class"] == c]
+        proc = procedural_set(c, 24, 1)
+        tested = np.concatenate([np.asarray(r["base_velocity"]) for r in mine])
+        made = np.concatenate([motion_features(m)[:, BASE_LINEAR] for m in proc])
+        lo, hi = np.percentile(tested[:, 0], [10, 90])
+        plo, phi = np.percentile(made[:, 0], [10, 90])
+        print(f"  {c:>12s} travel {np.median([r['travel'] for r in mine]):5.2f} / {np.median([travel(m) for m in proc]):5.2f}"
+              f"   forward {lo:5.2f} to {hi:5.2f} / {plo:5.2f} to {phi:5.2f}"
+              f"   vertical {tested[:, 2].std():4.2f} / {made[:, 2].std():4.2f}")
     print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s")
 
 
