@@ -43,6 +43,19 @@ def selected(args: argparse.Namespace, pick: np.random.Generator | None = None) 
     return runs
 
 
+def map_runs(fn, runs: list, args: argparse.Namespace) -> list:
+    """``fn((run, overrides))`` for every run, in order, in ``args.jobs`` spawned processes; ``overrides`` are the
+    engine settings of ``--set``."""
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    from harness.engine.config import settings_from_strings
+
+    overrides = settings_from_strings(args.set)
+    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
+        return list(pool.map(fn, [(r, overrides) for r in runs]))
+
+
 def tracker_for(inputs, overrides: dict):
     """The run's tracker with engine ``overrides`` applied."""
     import dataclasses

@@ -48,6 +48,7 @@ from scipy.spatial.transform import Rotation
 import loss_causes
 from harness import geometry
 from harness.engine.features import BASE_ANGULAR, BASE_LINEAR, N_FEATURES, motion_features
+from harness.engine.model import EngineModel
 from harness.engine.recognition import FEATURE_OUTLIER, Recognizer
 
 BASES = ("database", "given", "given+features")
@@ -73,31 +74,25 @@ def carried_base(obs, pos: np.ndarray, v: np.ndarray, w: np.ndarray):
     return dataclasses.replace(obs, camera_motion=motion)
 
 
-def without_base_velocity(model):
+def without_base_velocity(model, config):
     """The engine model of the same database (and model points) with every state's base velocity at zero, with
     no variance."""
     db = copy.deepcopy(model.db)
     db.means_[..., BASE_FEATURES] = 0.0
     db.covars_[..., BASE_FEATURES] = 1e-12
-    return _rebuilt(model, db)
+    return EngineModel.build(db, model.body, config.model_points, config.model_seed)
 
 
-def with_floor(model, speed: float):
+def with_floor(model, config, speed: float):
     """The engine model with every state's base linear velocity variance at least ``speed**2``."""
     db = copy.deepcopy(model.db)
     db.covars_[..., BASE_LINEAR] = np.maximum(db.covars_[..., BASE_LINEAR], speed ** 2)
-    return _rebuilt(model, db)
+    return EngineModel.build(db, model.body, config.model_points, config.model_seed)
 
 
-def _rebuilt(model, db):
-    """``model`` with database ``db`` (the same model points): its point distributions carried again."""
-    from harness.engine.model import body_extent
-    from harness.engine.transform import database_point_distributions
-
-    C, K, D = db.means_.shape
-    dists = database_point_distributions(db, model.body, model.points, model.spread)
-    return dataclasses.replace(model, db=db, dists=dists, db_means=db.means_.reshape(C * K, D),
-                               db_covars=db.covars_.reshape(C * K, D), body_extent=body_extent(dists))
+def in_base_frame(quat: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """Camera-frame vectors ``(T, 3)`` in the base frame of camera-frame orientations ``quat`` ``(T, 4)``."""
+    return np.einsum("tji,tj->ti", geometry.to_matrix(quat), vectors)
 
 
 class WithExtra(Recognizer):
@@ -126,10 +121,10 @@ def class_evidence(model, db, config, obs, pos, quat, base_features: np.ndarray 
         t = frame.index
         if not (started or frame.has_flows):
             continue
-        for c, rec in enumerate(recs):
+        for rec in recs:
             rec.predict()
-            if log_base is not None:
-                rec.extra = np.where(np.arange(C)[:, None] == c, log_base[t], 0.0)
+            # A recursion restricted to one primitive never evaluates the others' states: one table serves all.
+            rec.extra = None if log_base is None else log_base[t]
         started = True
         total += scorer.recognise(frame, recs, np.repeat(pos[t][None], C, axis=0), np.repeat(quat[t][None], C, axis=0),
                                   pose_given=True)
@@ -147,11 +142,10 @@ def _one(job) -> dict:
     pos, quat = truth.base_pos_cam, truth.base_quat_cam
     classes = list(model.db.classes_)
     v, w = base_motion(pos, quat, obs.fps)
-    rot = geometry.to_matrix(quat)
     features = np.zeros((len(pos), N_FEATURES))
-    features[:, BASE_LINEAR] = np.einsum("tji,tj->ti", rot, v)
-    features[:, BASE_ANGULAR] = np.einsum("tji,tj->ti", rot, w)
-    bare = without_base_velocity(model) if any(b != "database" for b in bases) else None
+    features[:, BASE_LINEAR] = in_base_frame(quat, v)
+    features[:, BASE_ANGULAR] = in_base_frame(quat, w)
+    bare = without_base_velocity(model, config) if any(b != "database" for b in bases) else None
     carried = carried_base(obs, pos, v, w)
     row = {"key": run.key, "class": run.test_class, "answers": {}, "demo": (inputs.motion.demo, inputs.motion.label)}
     for base in bases:
@@ -162,7 +156,7 @@ def _one(job) -> dict:
                                 features if base == "given+features" else None)
         row["answers"][base] = classes[int(np.argmax(ev))]
     for speed in floors:
-        ev = class_evidence(with_floor(model, speed), model.db, config, obs, pos, quat, None)
+        ev = class_evidence(with_floor(model, config, speed), model.db, config, obs, pos, quat, None)
         row["answers"][f"database, floor {speed:g} m/s"] = classes[int(np.argmax(ev))]
     for item in settings:
         changed = dataclasses.replace(config, **settings_from_strings([item]))

@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 
 import numpy as np
 
@@ -51,16 +49,12 @@ def _one(job) -> tuple[str, np.ndarray]:
 
 
 def main() -> None:
-    from harness.engine.config import settings_from_strings
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     dev_runs.add_arguments(ap)
     args = ap.parse_args()
     runs = dev_runs.selected(args, pick=np.random.default_rng(0))
-    overrides = settings_from_strings(args.set)
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
-        results = list(pool.map(_one, [(r, overrides) for r in runs]))
+    results = dev_runs.map_runs(_one, runs, args)
     print("mean |log(depth / true depth)| over the frames where the leader has siblings of its primitive:")
     for cond in dict.fromkeys(c for c, _ in results):
         rows = np.concatenate([r for c, r in results if c == cond])

@@ -31,8 +31,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 
 import numpy as np
 
@@ -147,8 +145,6 @@ def _median(values) -> str:
 
 
 def main() -> None:
-    from harness.engine.config import settings_from_strings
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     dev_runs.add_arguments(ap)
     ap.add_argument("--class", dest="classes", nargs="*", default=None, help="only runs of these test classes")
@@ -157,10 +153,8 @@ def main() -> None:
             if args.classes is None or r.test_class in args.classes]
     if not runs:
         raise SystemExit("no runs selected (check --amount, --class and the scenario's classes)")
-    overrides = settings_from_strings(args.set)
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
-        rows = list(pool.map(_one, [(r, overrides) for r in runs]))
+    rows = dev_runs.map_runs(_one, runs, args)
 
     lost = [r for r in rows if r["answer"] != r["class"]]
     for r in lost:

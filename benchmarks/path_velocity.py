@@ -16,21 +16,17 @@ from __future__ import annotations
 
 import argparse
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 
 import numpy as np
 
 import dev_runs
-from given_pose_losses import base_motion
-from harness import geometry
+from given_pose_losses import base_motion, in_base_frame
 from harness.engine.features import BASE_LINEAR
 
 
 def base_frame_velocity(qpos: np.ndarray, fps: float) -> np.ndarray:
     """``(T, 3)`` the base-frame linear velocity of a camera-frame base path (``qpos[:, :7]``)."""
-    v, _ = base_motion(qpos[:, :3], qpos[:, 3:7], fps)
-    return np.einsum("tji,tj->ti", geometry.to_matrix(qpos[:, 3:7]), v)
+    return in_base_frame(qpos[:, 3:7], base_motion(qpos[:, :3], qpos[:, 3:7], fps)[0])
 
 
 def _one(job) -> dict:
@@ -53,16 +49,12 @@ def _one(job) -> dict:
 
 
 def main() -> None:
-    from harness.engine.config import settings_from_strings
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     dev_runs.add_arguments(ap)
     args = ap.parse_args()
     runs = dev_runs.selected(args, pick=np.random.default_rng(0))
-    overrides = settings_from_strings(args.set)
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
-        rows = list(pool.map(_one, [(r, overrides) for r in runs]))
+    rows = dev_runs.map_runs(_one, runs, args)
     print("median over runs (m/s): base velocity error RMS of the causal and offline paths, the true velocity's RMS,"
           " the database's spread for the true class")
     for cond in dict.fromkeys(r["condition"] for r in rows):

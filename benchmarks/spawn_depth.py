@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 
 import numpy as np
 
@@ -50,16 +48,12 @@ def summary(ratios: np.ndarray) -> str:
 
 
 def main() -> None:
-    from harness.engine.config import settings_from_strings
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     dev_runs.add_arguments(ap)
     args = ap.parse_args()
     runs = dev_runs.selected(args)
-    overrides = settings_from_strings(args.set)
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
-        rows = list(pool.map(_one, [(r, overrides) for r in runs]))
+    rows = dev_runs.map_runs(_one, runs, args)
     print(f"{'run':28s} {'condition':24s} " + " ".join(f"{c:>9s}" for c in COLUMNS) + "   (depth / true depth)")
     for r in rows:
         print(f"{r['key']:28s} {r['condition']:24s} " + " ".join(f"{r[c]:9.2f}" for c in COLUMNS))
