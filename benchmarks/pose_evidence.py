@@ -15,6 +15,11 @@ true path and along its exact twin: a both-handed database (``database.mirrored`
 mirrored body as well as the truth. ``--seed`` replaces the scenario's seed
 (development seeds for choices, the scenario's own for reporting).
 
+Then the causal chooser (``causal_choice``): with the true path and its alternatives known exactly, the heading
+error of reporting at every frame the path with the most evidence so far, per condition, for all five
+alternatives and for the turns and the twins apart, and per class. ``--set recognise_velocities=false`` scores
+the flows' joint likelihood instead of the velocities given the positions.
+
 ``--shifts 2 4 6`` also measures how far each run's answer is from the pose's errors: every primitive's
 evidence (``scoring.path_class_evidence``, a track that believed only it) along the true path and along the
 true path shifted sideways as a whole (camera x) by each of these centimetres, both ways. Per class it prints
@@ -35,6 +40,7 @@ import numpy as np
 import dev_runs
 
 ALTERNATIVES = ("turn+90", "turn180", "turn-90", "twin", "twin_upright")
+CURVE_POINTS = 10
 
 
 def _one(job) -> dict:
@@ -53,10 +59,10 @@ def _one(job) -> dict:
     paths = {"truth": quat, "turn+90": turned(quat, np.pi / 2), "turn180": turned(quat, np.pi),
              "turn-90": turned(quat, -np.pi / 2), "twin": twin(quat),
              "twin_upright": np.array([twin(q[None], g)[0] for q, g in zip(quat, -truth.camera_rot[:, 2, :])])}
-    evidence, recognised = {}, {}
+    evidence, recognised, per_frame = {}, {}, {}
     for name, q in paths.items():
-        per_frame, posterior = path_recognition(model, tc, obs, pos, q)
-        evidence[name] = float(per_frame.sum())
+        per_frame[name], posterior = path_recognition(model, tc, obs, pos, q)
+        evidence[name] = float(per_frame[name].sum())
         recognised[name] = bool(inputs.db.classes_[posterior[-1].argmax()] == run.test_class)
     margins = {}
     true_class = list(inputs.db.classes_).index(run.test_class)
@@ -64,7 +70,40 @@ def _one(job) -> dict:
         class_evidence = path_class_evidence(model, tc, obs, pos + np.array([shift / 100.0, 0.0, 0.0]), quat)
         margins[shift] = float(class_evidence[true_class] - np.delete(class_evidence, true_class).max())
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, **evidence,
-            "recognised": recognised, "margins": margins}
+            "recognised": recognised, "margins": margins,
+            "causal": {group: causal_choice(per_frame, paths, truth.camera_rot, names)
+                       for group, names in CAUSAL_GROUPS.items()}}
+
+
+#: The paths the causal chooser picks among (``causal_choice``): all, and the truth with only one kind of
+#: alternative, so that the heading error a kind costs can be read apart.
+CAUSAL_GROUPS = {"all": ("truth", *ALTERNATIVES), "turns": ("truth", "turn+90", "turn180", "turn-90"),
+                 "twins": ("truth", "twin", "twin_upright")}
+
+
+def causal_choice(per_frame: dict, paths: dict, camera_rot: np.ndarray, names: tuple) -> dict:
+    """The causal chooser that knows the true path and ``names``' alternatives exactly: at every frame it reports
+    the path with the most evidence so far (``per_frame`` summed up to that frame). Returns its mean heading
+    error over the clip (deg, as ``evaluate`` measures it), the heading error at ten instants (as
+    ``metrics.heading_error_curve`` samples them), the share of frames at which it reports the truth, and the
+    offline chooser's mean heading error (the path with the most evidence over the whole clip, reported at
+    every frame: what an offline estimate choosing among the same paths would give). A
+    tracker, which knows neither the positions nor which alternatives exist, chooses from the same evidence
+    among inexact paths: its causal heading error is not expected below this."""
+    from harness.evaluation import metrics
+
+    total = np.cumsum(np.array([per_frame[n] for n in names]), axis=1)        # (paths, T)
+    # Paths tied for the most evidence (every path before the first flows) are reported with equal chance:
+    # each frame's error is the mean over the tied paths.
+    tied = total >= total.max(axis=0) - 1e-9
+    truth = paths["truth"]
+    errors = np.array([metrics.heading_error_curve(paths[n], truth, camera_rot, len(truth)) for n in names])
+    error = (errors * tied).sum(axis=0) / tied.sum(axis=0)
+    instants = np.round(np.linspace(0, len(error) - 1, CURVE_POINTS)).astype(int)
+    final = tied[:, -1]
+    return {"heading_deg": float(error.mean()), "curve": error[instants].tolist(),
+            "truth_share": float(np.mean(tied[0] / tied.sum(axis=0))),
+            "offline_heading_deg": float((errors.mean(axis=1) * final).sum() / final.sum())}
 
 
 def main() -> None:
@@ -105,9 +144,30 @@ def main() -> None:
         per_class = {c: [r for r in sub if r["class"] == c] for c in sorted({r["class"] for r in sub})}
         print(f"{cond}: {share(sub, 'truth')}% / {share(sub, 'twin')}%; "
               + ", ".join(f"{c} {share(rs, 'truth')}/{share(rs, 'twin')}%" for c, rs in per_class.items()))
+    print_causal(rows)
     if args.shifts:
         print_margins(rows, sorted(args.shifts))
     print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s")
+
+
+def print_causal(rows: list[dict]) -> None:
+    """Per condition and group of alternatives, the causal chooser's heading error (``causal_choice``)."""
+    print("\ncausal chooser among the exact paths (the most evidence so far, every frame): mean heading error over "
+          "the clip (deg; mean and median over runs), its median at ten instants, frames reporting the truth")
+    for cond in dict.fromkeys(r["condition"] for r in rows):
+        sub = [r for r in rows if r["condition"] == cond]
+        for group in CAUSAL_GROUPS:
+            err = np.array([r["causal"][group]["heading_deg"] for r in sub])
+            curve = np.median([r["causal"][group]["curve"] for r in sub], axis=0)
+            share = np.mean([r["causal"][group]["truth_share"] for r in sub])
+            offline = np.array([r["causal"][group]["offline_heading_deg"] for r in sub])
+            print(f"{cond} {group:6s}: {err.mean():5.1f} (median {np.median(err):5.1f}); over the clip "
+                  + " ".join(f"{v:.0f}" for v in curve) + f"; the truth at {100 * share:.0f}% of frames; "
+                  f"offline {offline.mean():5.1f}")
+        per_class = {c: [r["causal"]["all"] for r in sub if r["class"] == c] for c in sorted({r["class"] for r in sub})}
+        print("  per class (all; mean, and the median at the second and third instants): " + ", ".join(
+            f"{c} {np.mean([x['heading_deg'] for x in xs]):.0f} ({np.median([x['curve'][1] for x in xs]):.0f}, "
+            f"{np.median([x['curve'][2] for x in xs]):.0f})" for c, xs in per_class.items()))
 
 
 def print_margins(rows: list[dict], shifts: list[float]) -> None:
