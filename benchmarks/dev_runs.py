@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 
 import numpy as np
 
@@ -18,15 +19,18 @@ def add_arguments(ap: argparse.ArgumentParser, seed: int | None = None) -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--cache", default="results/cache")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="engine settings to use instead")
+    ap.add_argument("--mocap-dir", default=os.environ.get("HARNESS_MOCAP_DIR", "../shared/mocap/cmu"),
+                    help="capture directory, for capture scenarios")
 
 
 def selected(args: argparse.Namespace, pick: np.random.Generator | None = None) -> list:
     """The planned runs ``args`` select (``add_arguments``); a run's ``seed`` tells runs of several seeds apart.
     With ``--limit``, the first runs of each condition, or with ``pick`` that many drawn from it (in key order)."""
     from harness.evaluation.runner import plan
-    from harness.evaluation.scenario import load_scenario
+    from harness.evaluation.scenario import load_scenario, resolve_capture
 
-    scenario = load_scenario(args.scenario)
+    os.environ["HARNESS_MOCAP_DIR"] = args.mocap_dir         # the workers resolve the capture set again
+    scenario = resolve_capture(load_scenario(args.scenario), args.mocap_dir)
     seeded = [scenario.model_copy(update={"seed": s}) for s in args.seed] if args.seed else [scenario]
     runs = [r for sc in seeded for r in plan(sc, args.cache)
             if dict(r.swept).get("occluders.amount", r.config.occluders.amount) in args.amount]
