@@ -47,10 +47,9 @@ def _one(job) -> tuple[str, np.ndarray, np.ndarray]:
         # A track of one primitive is named after it (``walk/lead``, ``walk/lead>twin@12``).
         is_sibling = np.array([t.origin.split("/")[0] == lead.origin.split("/")[0] for t in tracks])
         n = len(tracks)
-        heading = heading_error_curve(np.array([t.qpos[3:7] for t in tracks]),
-                                      np.repeat(truth.base_quat_cam[i][None], n, axis=0),
-                                      np.repeat(truth.camera_rot[i][None], n, axis=0), n)
-        heading = np.array(heading)
+        heading = np.array(heading_error_curve(np.array([t.qpos[3:7] for t in tracks]),
+                                               np.repeat(truth.base_quat_cam[i][None], n, axis=0),
+                                               np.repeat(truth.camera_rot[i][None], n, axis=0), n))
         headings.append((heading[next(k for k, t in enumerate(tracks) if t is lead)], heading[is_sibling].min(),
                          heading.min()))
         if i < first:
