@@ -17,8 +17,9 @@ mirrored body as well as the truth. ``--seed`` replaces the scenario's seed
 
 Then the causal chooser (``causal_choice``): with the true path and its alternatives known exactly, the heading
 error of reporting at every frame the path with the most evidence so far, per condition, for all five
-alternatives and for the turns and the twins apart, and per class. ``--set recognise_velocities=false`` scores
-the flows' joint likelihood instead of the velocities given the positions.
+alternatives and for the turns and the twins apart, by the motion the flows have shown so far, and per class.
+``--set recognise_velocities=false`` scores the flows' joint likelihood instead of the velocities given the
+positions. For the twins misread, the truth's evidence margin over them.
 
 ``--shifts 2 4 6`` also measures how far each run's answer is from the pose's errors: every primitive's
 evidence (``scoring.path_class_evidence``, a track that believed only it) along the true path and along the
@@ -72,7 +73,14 @@ def _one(job) -> dict:
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, **evidence,
             "recognised": recognised, "margins": margins,
             "causal": {group: causal_choice(per_frame, paths, truth.camera_rot, names)
-                       for group, names in CAUSAL_GROUPS.items()}}
+                       for group, names in CAUSAL_GROUPS.items()},
+            "motion": motion_so_far(obs)}
+
+
+def motion_so_far(obs) -> np.ndarray:
+    """``(T,)`` the motion the flows have shown up to each frame: the running sum of each frame's mean flow
+    speed (px/s; 0 for a frame without flows)."""
+    return np.cumsum([np.linalg.norm(f[:, 2:4], axis=1).mean() if len(f) else 0.0 for f in obs.flows])
 
 
 #: The paths the causal chooser picks among (``causal_choice``): all, and the truth with only one kind of
@@ -101,7 +109,7 @@ def causal_choice(per_frame: dict, paths: dict, camera_rot: np.ndarray, names: t
     error = (errors * tied).sum(axis=0) / tied.sum(axis=0)
     instants = np.round(np.linspace(0, len(error) - 1, CURVE_POINTS)).astype(int)
     final = tied[:, -1]
-    return {"heading_deg": float(error.mean()), "curve": error[instants].tolist(),
+    return {"heading_deg": float(error.mean()), "curve": error[instants].tolist(), "per_frame": error,
             "truth_share": float(np.mean(tied[0] / tied.sum(axis=0))),
             "offline_heading_deg": float((errors.mean(axis=1) * final).sum() / final.sum())}
 
@@ -144,6 +152,10 @@ def main() -> None:
         per_class = {c: [r for r in sub if r["class"] == c] for c in sorted({r["class"] for r in sub})}
         print(f"{cond}: {share(sub, 'truth')}% / {share(sub, 'twin')}%; "
               + ", ".join(f"{c} {share(rs, 'truth')}/{share(rs, 'twin')}%" for c, rs in per_class.items()))
+        misread = np.array([r["truth"] - r["twin"] for r in sub if not r["recognised"]["twin"]])
+        if len(misread):
+            print(f"  twins misread: {len(misread)}; the truth's evidence minus the twin's there: "
+                  + ", ".join(f"{m:.0f}" for m in np.sort(misread)))
     print_causal(rows)
     if args.shifts:
         print_margins(rows, sorted(args.shifts))
@@ -164,6 +176,16 @@ def print_causal(rows: list[dict]) -> None:
             print(f"{cond} {group:6s}: {err.mean():5.1f} (median {np.median(err):5.1f}); over the clip "
                   + " ".join(f"{v:.0f}" for v in curve) + f"; the truth at {100 * share:.0f}% of frames; "
                   f"offline {offline.mean():5.1f}")
+        error = np.concatenate([r["causal"]["all"]["per_frame"] for r in sub])
+        motion = np.concatenate([r["motion"] for r in sub])
+        edges = np.percentile(motion, [0, 10, 30, 70, 100])
+        bins = np.clip(np.searchsorted(edges, motion, side="right") - 1, 0, len(edges) - 2)
+        first_fifth = np.concatenate([np.arange(len(r["motion"])) < 0.2 * len(r["motion"]) for r in sub])
+        below = first_fifth & (motion <= np.median(motion[first_fifth]))
+        print("  by the motion shown so far (all; frames in its 0-10, 10-30, 30-70, 70-100% quantiles): "
+              + ", ".join(f"{error[bins == b].mean():.0f}" for b in range(len(edges) - 1))
+              + f"; in each clip's first fifth, below its median motion {error[below].mean():.0f}, above "
+              f"{error[first_fifth & ~below].mean():.0f}")
         per_class = {c: [r["causal"]["all"] for r in sub if r["class"] == c] for c in sorted({r["class"] for r in sub})}
         print("  per class (all; mean, and the median at the second and third instants): " + ", ".join(
             f"{c} {np.mean([x['heading_deg'] for x in xs]):.0f} ({np.median([x['curve'][1] for x in xs]):.0f}, "
