@@ -33,8 +33,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
+from functools import partial
 
 import numpy as np
 
@@ -44,8 +43,9 @@ ALTERNATIVES = ("turn+90", "turn180", "turn-90", "twin", "twin_upright")
 CURVE_POINTS = 10
 
 
-def _one(job) -> dict:
-    run, overrides, shifts = job
+def _one(job, shifts: tuple = ()) -> dict:
+    run, overrides = job
+    from harness.evaluation.metrics import heading_error_curve
     from harness.engine.model import EngineModel
     from harness.engine.track import turned, twin
     from harness.engine.scoring import path_class_evidence, path_recognition
@@ -65,6 +65,8 @@ def _one(job) -> dict:
         per_frame[name], posterior = path_recognition(model, tc, obs, pos, q)
         evidence[name] = float(per_frame[name].sum())
         recognised[name] = bool(inputs.db.classes_[posterior[-1].argmax()] == run.test_class)
+    # Each path's heading error at every frame, as evaluate measures it (every chooser reads these).
+    heading = {n: np.array(heading_error_curve(q, quat, truth.camera_rot, len(quat))) for n, q in paths.items()}
     margins = {}
     true_class = list(inputs.db.classes_).index(run.test_class)
     for shift in sorted({0.0, *shifts, *(-s for s in shifts)}) if shifts else ():
@@ -72,8 +74,7 @@ def _one(job) -> dict:
         margins[shift] = float(class_evidence[true_class] - np.delete(class_evidence, true_class).max())
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, **evidence,
             "recognised": recognised, "margins": margins,
-            "causal": {group: causal_choice(per_frame, paths, truth.camera_rot, names)
-                       for group, names in CAUSAL_GROUPS.items()},
+            "causal": {group: causal_choice(per_frame, heading, names) for group, names in CAUSAL_GROUPS.items()},
             "motion": motion_so_far(obs)}
 
 
@@ -89,23 +90,21 @@ CAUSAL_GROUPS = {"all": ("truth", *ALTERNATIVES), "turns": ("truth", "turn+90", 
                  "twins": ("truth", "twin", "twin_upright")}
 
 
-def causal_choice(per_frame: dict, paths: dict, camera_rot: np.ndarray, names: tuple) -> dict:
+def causal_choice(per_frame: dict, heading: dict, names: tuple) -> dict:
     """The causal chooser that knows the true path and ``names``' alternatives exactly: at every frame it reports
-    the path with the most evidence so far (``per_frame`` summed up to that frame). Returns its mean heading
+    the path with the most evidence so far (``per_frame`` summed up to that frame; ``heading``: each path's
+    heading error at every frame, deg). Returns its mean heading
     error over the clip (deg, as ``evaluate`` measures it), the heading error at ten instants (as
     ``metrics.heading_error_curve`` samples them), the share of frames at which it reports the truth, and the
     offline chooser's mean heading error (the path with the most evidence over the whole clip, reported at
     every frame: what an offline estimate choosing among the same paths would give). A
     tracker, which knows neither the positions nor which alternatives exist, chooses from the same evidence
     among inexact paths: its causal heading error is not expected below this."""
-    from harness.evaluation import metrics
-
     total = np.cumsum(np.array([per_frame[n] for n in names]), axis=1)        # (paths, T)
     # Paths tied for the most evidence (every path before the first flows) are reported with equal chance:
     # each frame's error is the mean over the tied paths.
     tied = total >= total.max(axis=0) - 1e-9
-    truth = paths["truth"]
-    errors = np.array([metrics.heading_error_curve(paths[n], truth, camera_rot, len(truth)) for n in names])
+    errors = np.array([heading[n] for n in names])
     error = (errors * tied).sum(axis=0) / tied.sum(axis=0)
     instants = np.round(np.linspace(0, len(error) - 1, CURVE_POINTS)).astype(int)
     final = tied[:, -1]
@@ -115,18 +114,14 @@ def causal_choice(per_frame: dict, paths: dict, camera_rot: np.ndarray, names: t
 
 
 def main() -> None:
-    from harness.engine.config import settings_from_strings
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     dev_runs.add_arguments(ap)
     ap.add_argument("--shifts", type=float, nargs="*", default=[],
                     help="sideways shifts (cm) of the true path at which every class is scored (module docstring)")
     args = ap.parse_args()
     runs = dev_runs.selected(args, pick=np.random.default_rng(0))
-    overrides = settings_from_strings(args.set)
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
-        rows = list(pool.map(_one, [(r, overrides, tuple(args.shifts)) for r in runs]))
+    rows = dev_runs.map_runs(partial(_one, shifts=tuple(args.shifts)), runs, args)
     print(f"{'run':28s} {'condition':24s} " + " ".join(f"{a:>9s}" for a in ALTERNATIVES) + "   (truth minus "
           "alternative, tempered nats)")
     for r in rows:
