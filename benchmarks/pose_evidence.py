@@ -21,6 +21,8 @@ alternatives and for the turns and the twins apart, by the motion the flows have
 ``--set recognise_velocities=false`` scores the flows' joint likelihood instead of the velocities given the
 positions. For the twins misread, the truth's evidence margin over them.
 
+Then, for the first frames with flows, how much each frame tells the truth from each alternative (``print_early``).
+
 ``--shifts 2 4 6`` also measures how far each run's answer is from the pose's errors: every primitive's
 evidence (``scoring.path_class_evidence``, a track that believed only it) along the true path and along the
 true path shifted sideways as a whole (camera x) by each of these centimetres, both ways. Per class it prints
@@ -41,6 +43,7 @@ import dev_runs
 
 ALTERNATIVES = ("turn+90", "turn180", "turn-90", "twin", "twin_upright")
 CURVE_POINTS = 10
+EARLY_FRAMES = 8        # the first frames with flows whose per-frame margins ``print_early`` shows
 
 
 def _one(job, shifts: tuple = ()) -> dict:
@@ -72,8 +75,10 @@ def _one(job, shifts: tuple = ()) -> dict:
     for shift in sorted({0.0, *shifts, *(-s for s in shifts)}) if shifts else ():
         class_evidence = path_class_evidence(model, tc, obs, pos + np.array([shift / 100.0, 0.0, 0.0]), quat)
         margins[shift] = float(class_evidence[true_class] - np.delete(class_evidence, true_class).max())
+    first = int(np.argmax(obs.counts > 0))
+    early = {a: (per_frame["truth"] - per_frame[a])[first:first + EARLY_FRAMES] for a in ALTERNATIVES}
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, **evidence,
-            "recognised": recognised, "margins": margins,
+            "recognised": recognised, "margins": margins, "early": early,
             "causal": {group: causal_choice(per_frame, heading, names) for group, names in CAUSAL_GROUPS.items()},
             "motion": motion_so_far(obs)}
 
@@ -152,6 +157,7 @@ def main() -> None:
             print(f"  twins misread: {len(misread)}; the truth's evidence minus the twin's there: "
                   + ", ".join(f"{m:.0f}" for m in np.sort(misread)))
     print_causal(rows)
+    print_early(rows)
     if args.shifts:
         print_margins(rows, sorted(args.shifts))
     print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s")
@@ -185,6 +191,23 @@ def print_causal(rows: list[dict]) -> None:
         print("  per class (all; mean, and the median at the second and third instants): " + ", ".join(
             f"{c} {np.mean([x['heading_deg'] for x in xs]):.0f} ({np.median([x['curve'][1] for x in xs]):.0f}, "
             f"{np.median([x['curve'][2] for x in xs]):.0f})" for c, xs in per_class.items()))
+
+
+def print_early(rows: list[dict]) -> None:
+    """Per condition and alternative: how much each of the first frames with flows tells the truth from the
+    alternative (its per-frame evidence minus the alternative's; median over runs, and the share of runs in which
+    the frame favours the truth). Early in a clip the discrete primitives rest, and the chooser is wrong there."""
+    print(f"\nthe first {EARLY_FRAMES} frames with flows: per-frame evidence of the truth minus the alternative's "
+          "(tempered nats; median over runs), and the share of runs that frame favours the truth")
+    for cond in dict.fromkeys(r["condition"] for r in rows):
+        sub = [r for r in rows if r["condition"] == cond]
+        print(f"{cond}:")
+        for a in ALTERNATIVES:
+            m = [r["early"][a] for r in sub]
+            n = min(len(x) for x in m)
+            m = np.array([x[:n] for x in m])
+            print(f"  {a:12s} " + " ".join(f"{v:6.2f}" for v in np.median(m, axis=0)) + "   favours the truth "
+                  + " ".join(f"{v:.2f}" for v in (m > 0).mean(axis=0)))
 
 
 def print_margins(rows: list[dict], shifts: list[float]) -> None:
