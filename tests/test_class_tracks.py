@@ -12,6 +12,7 @@ import pytest
 from engine_fixtures import CLASSES, synthetic_demos, synthetic_observation
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
 from harness.engine.particle_filter import camera_pitch, depth_guess, upright_orientations
+from harness.engine.logsum import logsumexp
 from harness.engine.pose_source import ParticleTracks
 from harness.engine.recognition import Recognizer
 from harness.engine.track import Track, prune_and_merge
@@ -100,6 +101,31 @@ def test_each_primitive_spawns_its_own_set_of_tracks_from_its_own_weighing(body,
         dots = np.abs(lead_track.cloud.quats @ lead)
         assert np.all(2 * np.arccos(np.clip(dots, -1, 1)) <= np.deg2rad(45.0) + 1e-9)
     assert len({tuple(np.round(per_class[c][:5], 6)) for c in range(C)}) == C     # the weighings differ
+
+
+def test_the_first_frame_counts_once_and_later_frames_weigh(body, trained):
+    """The spawned tracks are drawn from the first frame's own weighing, so that frame does not weigh them again
+    (their particles stay equally weighted: counted twice, the frame's likelihood would be squared); the next
+    frame weighs them (their proposal weights times that frame's tempered likelihoods under each track's belief)."""
+    m = synthetic_demos(body, "march", 1, np.random.default_rng(3), seconds=0.5)[0]
+    obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))
+    tracker = Tracker(trained, body, TrackerConfig(particles=90, model_points=40, track_turns=(180.0,)))
+    tracker.reset(obs.intrinsics, obs.fps, np.random.default_rng(5))
+    tracker.step(obs.flows[0])
+    tracker.step(obs.flows[1])                          # the first frame with flows: the spawn
+    assert tracker.tracks
+    for track in tracker.tracks:
+        np.testing.assert_allclose(track.cloud.log_weights, -np.log(len(track.cloud)), atol=1e-12)
+    source = tracker.source
+    frame = tracker._frames.next(obs.flows[2])
+    for track in tracker.tracks:
+        track.predict_belief()
+    source.predict(frame, tracker.tracks)
+    expected = [t.cloud.log_weights + ll - logsumexp(t.cloud.log_weights + ll)
+                for t, ll in zip(tracker.tracks, source.log_likelihoods(frame, tracker.tracks))]
+    source.weigh(frame, tracker.tracks)
+    for track, want in zip(tracker.tracks, expected):
+        np.testing.assert_allclose(track.cloud.log_weights, want, atol=1e-9)
 
 
 def _track(track_id, evidence, position, heading_deg, primitive=None, family=None):

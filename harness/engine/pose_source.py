@@ -104,6 +104,7 @@ class ParticleTracks:
         self._frames: dict[int, Frame] = {}      # the frames re-injection replays
         self._alternatives = alternatives(scorer.config)
         self._screened: dict = {}                # re-injection's screened snapshots (``screen``)
+        self._drawn_at: int | None = None        # the frame whose weighing ``start`` drew the tracks from
 
     @property
     def memory(self) -> int:
@@ -132,6 +133,10 @@ class ParticleTracks:
         if not self.class_tracks:
             wide.reweight(logsumexp(per_class + log_prior[:, None], axis=0))
             return self.spawn(wide, frame.gravity)
+        # Each primitive's tracks are drawn from the frame's weighing under that primitive, the likelihood ``weigh``
+        # applies to them: this frame is in them already. (A stream's tracks are drawn from the mixture's
+        # weighing, which its weighing under every primitive alike does not repeat.)
+        self._drawn_at = frame.index
         C = len(per_class)
         n_each = self.share(C * cfg.n_tracks)
         tracks = []
@@ -275,7 +280,9 @@ class ParticleTracks:
         if self.scorer.config.reinject_every:
             self._frames[frame.index] = frame
             self._frames.pop(frame.index - self.memory, None)
-        if frame.has_flows:
+        # The tracks per primitive ``start`` drew from this frame's weighing hold it already: weighed again, the
+        # first frame would count twice (docs/engine.md, "Spawning").
+        if frame.has_flows and frame.index != self._drawn_at:
             for track, ll in zip(tracks, self.log_likelihoods(frame, tracks)):
                 track.reweight(ll)
         positions, quats, spreads = settled([t.cloud for t in tracks])
