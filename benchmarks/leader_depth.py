@@ -41,9 +41,10 @@ def _one(job) -> tuple[str, np.ndarray, np.ndarray]:
     tracker.run(obs)
     first = next(i for i, r in enumerate(tracker.records) if r.tracks)
     rows, headings = [], []
-    for i, rec in enumerate(tracker.records):
-        tracks = tracker.records[max(i, first)].tracks
-        _, lead = tracker.records[max(i, first)].decision()
+    for i in range(len(tracker.records)):
+        rec = tracker.records[max(i, first)]           # before the first tracks, the first frame's tracks
+        tracks = rec.tracks
+        _, lead = rec.decision()
         # A track of one primitive is named after it (``walk/lead``, ``walk/lead>twin@12``).
         is_sibling = np.array([t.origin.split("/")[0] == lead.origin.split("/")[0] for t in tracks])
         n = len(tracks)

@@ -11,8 +11,8 @@ import pytest
 
 from engine_fixtures import CLASSES, synthetic_demos, synthetic_observation
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
-from harness.engine.particle_filter import camera_pitch, depth_guess, upright_orientations
 from harness.engine.logsum import logsumexp
+from harness.engine.particle_filter import camera_pitch, depth_guess, upright_orientations
 from harness.engine.pose_source import ParticleTracks
 from harness.engine.recognition import Recognizer
 from harness.engine.track import Track, prune_and_merge
