@@ -128,26 +128,23 @@ def test_the_first_frame_counts_once_and_later_frames_weigh(body, trained):
         np.testing.assert_allclose(track.cloud.log_weights, want, atol=1e-9)
 
 
-def _track(track_id, evidence, position, heading_deg, primitive=None, family=None):
-    t = Track(track_id, "lead", None, primitive=primitive, family=family)
+def _track(track_id, evidence, position, heading_deg, primitive=None):
+    t = Track(track_id, "lead", None, primitive=primitive)
     t.log_evidence = evidence
     t.place(np.asarray(position, float), upright_orientations(np.deg2rad([heading_deg]), camera_pitch(0.0))[0])
     return t
 
 
-def test_tracks_of_two_primitives_that_met_both_stay_and_depth_siblings_prune_among_themselves():
+def test_tracks_of_two_primitives_that_met_both_stay_and_far_behind_tracks_go():
     a = _track(0, -100.0, [0, 0, 4], 0, primitive=0)
     b = _track(1, -101.0, [0, 0, 4.05], 5, primitive=1)      # met a, another primitive: kept
     c = _track(2, -102.0, [0, 0, 4.1], 3, primitive=0)       # met a, same primitive: merged into a
     assert [t.id for t in prune_and_merge([c, b, a], 30.0, 0.3, 30.0)] == [0, 1]
-    # Siblings of one family: the one trailing its family's best by more than family_nats goes, even though it
-    # is well within the global prune margin; a track of no family is judged by the global margin only.
-    near = _track(3, -100.0, [0, 0, 3.4], 0, primitive=0, family=3)
-    mid = _track(4, -104.0, [0, 0, 4.0], 90, primitive=0, family=3)
-    far = _track(5, -106.0, [0, 0, 4.8], 180, primitive=0, family=3)
-    lone = _track(6, -120.0, [1, 0, 4.0], 0, primitive=0)
-    kept = prune_and_merge([far, mid, near, lone], 30.0, 0.3, 30.0, family_nats=5.0)
-    assert [t.id for t in kept] == [3, 4, 6]
+    # Far from each other: kept within the prune margin of the best, dropped beyond it.
+    near = _track(3, -100.0, [0, 0, 3.4], 0, primitive=0)
+    mid = _track(4, -129.0, [0, 0, 4.0], 90, primitive=0)
+    far = _track(5, -131.0, [0, 0, 4.8], 180, primitive=0)
+    assert [t.id for t in prune_and_merge([far, mid, near], 30.0, 0.3, 30.0)] == [3, 4]
 
 
 @pytest.fixture(scope="module")
@@ -193,7 +190,7 @@ def test_the_spawned_lead_is_within_ten_percent_of_the_true_depth(body, all_prim
 def test_the_same_seed_gives_an_identical_estimate(body, trained):
     m = synthetic_demos(body, "wave", 1, np.random.default_rng(21), seconds=0.6)[0]
     obs, _, _ = synthetic_observation(body, m, np.random.default_rng(22))
-    cfg = TrackerConfig(particles=60, model_points=40, spawn_depths=(0.85, 1.0, 1.2))
+    cfg = TrackerConfig(particles=60, model_points=40)
     one, two = (Tracker(trained, body, cfg, rng=np.random.default_rng(23)).run(obs) for _ in range(2))
     for name in ("qpos", "class_posterior", "filter_pos", "filter_quat", "n_tracks"):
         np.testing.assert_array_equal(getattr(one, name), getattr(two, name))

@@ -25,13 +25,10 @@ class TrackerConfig:
     init_factor: int = 3                     # the first frame weighs this many times more particles (8 before;
                                              # 3: the same recognition on 80 development runs, seed 101, 7 runs
                                              # fixed, 7 lost, heading +1.9 +- 3.2 deg, a third less time)
-    init_depth_focus: float = 0.0            # share of the first frame's depths drawn about the flows' depth guess
-    init_depth_focus_std: float = 0.1        # ... log-normal with this log-std (the rest over a wide band; 0.5
-                                             # on 80 development runs, seed 101: 87.5% against 86.3, 7 fixed,
-                                             # 6 lost, heading +3.8 +- 3.1 deg: no gain)
-    init_depth_band: tuple[float, float] = (0.35, 1.3)  # the rest log-uniform over this band times the guess
-                                             # ([0.6, 1.4]: 12 fixed, 9 lost of 160 development runs, the wall's
-                                             # baselink error +0.4 m; docs/engine.md)
+    init_depth_band: tuple[float, float] = (0.35, 1.3)  # first depths log-uniform over this x the guess
+                                             # (the flows'; [0.6, 1.4]: 12 fixed, 9 lost of 160 development runs,
+                                             # the wall's baselink error +0.4 m; a share drawn about the guess:
+                                             # no gain; docs/engine.md)
     init_keep: float = 0.25                  # ... and re-weighs the best share of them primitive by primitive
     noise_px: float = 1.0                    # assumed pixel noise of flow positions
     outlier_prob: float = 0.05
@@ -90,10 +87,6 @@ class TrackerConfig:
     guide_rotation_std: float = 0.05         # rad, spread of those proposals (position: half the cloud's spread)
     track_turns: tuple[float, ...] = (90.0, 180.0, -90.0)   # tracks spawned at these turns of the leader
     twin_track: bool = True                  # and at the leader's depth-reflected twin
-    spawn_depths: tuple[float, ...] = (1.0,)  # each spawned track once per scale of its depth (siblings; 0.85,
-                                             # 1, 1.2 on the same runs: 86.3% either way, heading +5.7 +- 3.7
-                                             # deg, slower) ...
-    depth_prune_nats: float = 5.0            # ... a sibling trailing its family's best by this much is dropped
     class_tracks: bool = True                # these tracks once per primitive, each from the first frame weighed
                                              # under that primitive and believing only it (not in streams;
                                              # issue 21, 40 development runs per condition, seed 101: 87.5%
@@ -163,7 +156,7 @@ class TrackerConfig:
     @property
     def n_tracks(self) -> int:
         """Tracks spawned per set (per primitive with ``class_tracks``)."""
-        return (1 + len(self.track_turns) + int(self.twin_track)) * len(self.spawn_depths)
+        return 1 + len(self.track_turns) + int(self.twin_track)
 
 
 # Sizes the engine allocates by: the first frame weighs particles x init_factor hypotheses against every
@@ -174,16 +167,15 @@ MAX_MODEL_POINTS = 100_000
 MAX_HYPOTHESIS_POINTS = 20_000_000
 MAX_ITERATIONS = 1000            # EM, weight and Gauss-Newton steps, recovered tracks, classes weighed
 MAX_TRACK_TURNS = 16
-MAX_SPAWN_DEPTHS = 5
+MAX_DEPTH_SCALES = 5
 # Settings that must be >= 0, > 0, or within [lo, hi] (None: open), beyond the checks above; each ran before
 # with a meaningless result or failed deep inside a run (issue 23).
 _AT_LEAST_ZERO = ("reinject_every", "reinject_margin", "model_seed", "weight_iterations", "refine_iterations", "recover_tracks", "smoothing_frames",
                   "weight_smoothing", "position_noise", "rotation_noise", "tilt_noise", "guide_rotation_std",
                   "occlusion_radius", "occlusion_depth", "min_spawn_ess", "track_merge_deg", "track_merge_m")
-_ABOVE_ZERO = ("track_particles_max", "reinject_window", "reinject_classes", "open_cell_px", "posterior_temperature", "init_depth_focus_std", "floor_std", "floor_flight_height",
-               "refine_position_std", "refine_rotation_std", "track_prune_nats", "depth_prune_nats")
-_WITHIN = {"init_keep": (0.0, 1.0, "(0, 1]"), "init_depth_focus": (None, 1.0, "[0, 1]"),
-           "weigh_class_mass": (0.0, 1.0, "(0, 1]"), "start_spread": (None, 1.0, "[0, 1]"),
+_ABOVE_ZERO = ("track_particles_max", "reinject_window", "reinject_classes", "open_cell_px", "posterior_temperature", "floor_std", "floor_flight_height",
+               "refine_position_std", "refine_rotation_std", "track_prune_nats")
+_WITHIN = {"init_keep": (0.0, 1.0, "(0, 1]"), "weigh_class_mass": (0.0, 1.0, "(0, 1]"), "start_spread": (None, 1.0, "[0, 1]"),
            "posterior_floor": (None, 1.0, "[0, 1)"), "floor_flight": (None, 1.0, "[0, 1)")}
 _COUNTS = ("reinject_every", "reinject_window", "reinject_classes", "weight_iterations", "refine_iterations", "recover_tracks", "em_iterations", "weigh_classes",
            "init_factor")
@@ -229,15 +221,11 @@ def _check_bounds(cfg: TrackerConfig) -> None:
     if len(cfg.init_depth_band) != 2 or not 0.1 <= cfg.init_depth_band[0] < cfg.init_depth_band[1] <= 10.0:
         raise EngineError(f"engine setting init_depth_band must be [near, far] scales of the depth guess with "
                           f"0.1 <= near < far <= 10, got {list(cfg.init_depth_band)}")
-    if len(cfg.reinject_turns) > MAX_TRACK_TURNS or len(cfg.reinject_depths) > MAX_SPAWN_DEPTHS or not all(
+    if len(cfg.reinject_turns) > MAX_TRACK_TURNS or len(cfg.reinject_depths) > MAX_DEPTH_SCALES or not all(
             0.2 <= s <= 5.0 for s in cfg.reinject_depths):
         raise EngineError(f"engine settings reinject_turns and reinject_depths list at most {MAX_TRACK_TURNS} turns "
-                          f"and {MAX_SPAWN_DEPTHS} depth scales within [0.2, 5], got {list(cfg.reinject_turns)} and "
+                          f"and {MAX_DEPTH_SCALES} depth scales within [0.2, 5], got {list(cfg.reinject_turns)} and "
                           f"{list(cfg.reinject_depths)}")
-    if not cfg.spawn_depths or len(cfg.spawn_depths) > MAX_SPAWN_DEPTHS or not all(
-            0.2 <= s <= 5.0 for s in cfg.spawn_depths):
-        raise EngineError(f"engine setting spawn_depths must list 1 to {MAX_SPAWN_DEPTHS} depth scales within "
-                          f"[0.2, 5], got {list(cfg.spawn_depths)}")
     if round(cfg.init_keep * cfg.particles * cfg.init_factor) < 1:
         raise EngineError(f"engine setting init_keep ({cfg.init_keep}) keeps no particle of the first frame's "
                           f"{cfg.particles * cfg.init_factor}")

@@ -209,18 +209,16 @@ def depth_guess(intr: Intrinsics, flows: np.ndarray, body_extent: float) -> floa
 
 def initial_cloud(intr: Intrinsics, flows: np.ndarray, n: int, rng: np.random.Generator, *,
                   depth_range: tuple[float, float], world_from_camera: np.ndarray, body_extent: float,
-                  focus: tuple[float, float] = (0.0, 0.1), band: tuple[float, float] = (0.35, 1.3)) -> ParticleCloud:
+                  band: tuple[float, float] = (0.35, 1.3)) -> ParticleCloud:
     """A coarse prior: the subject where the flows are, any heading, upright under the cameras
     ``world_from_camera`` (``(n, 3, 3)`` drawn by the caller from its elevation prior, or the known tilt), at a
-    depth within ``depth_range`` drawn from a mixture around what the flows' vertical extent suggests
-    (``depth_guess``): a share ``focus[0]`` log-normal about the guess with log-std ``focus[1]`` (the guess is
-    unbiased for a body seen whole), the rest log-uniform over ``band`` times it (a body partly hidden,
-    a wall hiding the legs, or crouched, looks farther; raised arms, nearer)."""
+    depth within ``depth_range`` drawn log-uniform over ``band`` times what the flows' vertical extent suggests
+    (``depth_guess``, unbiased for a body seen whole; a body partly hidden, a wall hiding the legs, or crouched,
+    looks farther; raised arms, nearer)."""
     lo, hi = depth_range
     if not 0 < lo < hi:
         raise EngineError(f"depth range must satisfy 0 < near < far, got {depth_range}")
     pts = np.asarray(flows, dtype=float).reshape(-1, 4)[:, :2]
-    share, log_std = focus
     if len(pts) >= 2:
         u_lo, u_hi = np.percentile(pts[:, 0], [5, 95])
         v_lo, v_hi = np.percentile(pts[:, 1], [5, 95])
@@ -233,13 +231,10 @@ def initial_cloud(intr: Intrinsics, flows: np.ndarray, n: int, rng: np.random.Ge
         # The base (pelvis) is in the lower part of the visible body, or below it when the legs are hidden.
         v = rng.uniform(v_lo + 0.2 * extent, v_hi + 0.3 * extent, n)
     else:
-        near, far, guess, share = lo, hi, None, 0.0
+        near, far = lo, hi
         u = rng.uniform(0, intr.width, n)
         v = rng.uniform(0, intr.height, n)
     z = np.exp(rng.uniform(np.log(near), np.log(far), n))
-    if share > 0:
-        focused = rng.random(n) < share
-        z = np.where(focused, np.clip(guess * np.exp(log_std * rng.standard_normal(n)), lo, hi), z)
     positions = np.stack([(u - intr.cx) * z / intr.fx, (v - intr.cy) * z / intr.fy, z], axis=1)
     quats = upright_orientations(rng.uniform(-np.pi, np.pi, n), world_from_camera)
     return ParticleCloud(positions, quats, np.full(n, -np.log(n)))

@@ -163,7 +163,7 @@ class ParticleTracks:
                    else level_world(frame.gravity))
         wide = initial_cloud(frame.intr, frame.flows, n_wide, rng, depth_range=cfg.init_distance,
                              world_from_camera=cameras, body_extent=model.body_extent,
-                             focus=(cfg.init_depth_focus, cfg.init_depth_focus_std), band=cfg.init_depth_band)
+                             band=cfg.init_depth_band)
         prior = new_recognizer(model.db, cfg).posterior
         blob = self.scorer.image(frame, geometry.to_matrix(wide.quats), wide.positions,
                                  model.dists.mixture(prior.ravel()))
@@ -189,16 +189,14 @@ class ParticleTracks:
         about the body's vertical, and its twin, with ``n_each`` particles each (default: an equal share of all).
         A track starts from the cloud's own particles within 45 degrees of its orientation (their positions fit
         it); where they hold fewer than ``min_spawn_ess`` effective particles, from the lead's particles turned
-        to it. Each track is spawned once per ``spawn_depths`` scale of its particles' depth (a family of depth
-        siblings, pruned among themselves by ``depth_prune_nats``). With ``primitive``, the tracks believe only
-        that primitive (``Recognizer.restrict``)."""
+        to it. With ``primitive``, the tracks believe only that primitive (``Recognizer.restrict``)."""
         cfg, rng = self.scorer.config, self.rng
         _, lead = wide.estimate()
         spawn = [("lead", lead)] + [(f"turn{a:+g}", turned(lead[None], np.deg2rad(a))[0]) for a in cfg.track_turns]
         if cfg.twin_track:
             spawn.append(("twin", twin(lead[None], gravity)[0]))
         if n_each is None:
-            n_each = self.share(len(spawn) * len(cfg.spawn_depths))
+            n_each = self.share(len(spawn))
         prefix = "" if primitive is None else f"{self.scorer.model.db.classes_[primitive]}/"
         tracks = []
         for origin, centre in spawn:
@@ -211,17 +209,11 @@ class ParticleTracks:
                 cloud = wide.take(systematic_resample(np.where(lead_near, wide.weights, 0.0), rng, n_each))
                 rel = geometry.multiply(geometry.conjugate(lead), centre)     # lead -> centre, body frame
                 cloud.quats = geometry.multiply(cloud.quats, np.broadcast_to(rel, cloud.quats.shape))
-            family = self._spawned
-            for scale in cfg.spawn_depths:
-                belief = new_recognizer(self.scorer.model.db, cfg)
-                if primitive is not None:
-                    belief.restrict([primitive])
-                # Scaling the position about the camera centre keeps the body where the flows are in the image.
-                sibling = ParticleCloud(cloud.positions * scale, cloud.quats.copy(), cloud.log_weights.copy())
-                name = prefix + origin + ("" if scale == 1.0 else f"@{scale:g}")
-                tracks.append(Track(self._spawned, name, belief, sibling, primitive=primitive,
-                                    family=family if len(cfg.spawn_depths) > 1 else None, memory=self.memory))
-                self._spawned += 1
+            belief = new_recognizer(self.scorer.model.db, cfg)
+            if primitive is not None:
+                belief.restrict([primitive])
+            tracks.append(Track(self._spawned, prefix + origin, belief, cloud, primitive=primitive, memory=self.memory))
+            self._spawned += 1
         return tracks
 
     # --- every frame ----------------------------------------------------------------------------
@@ -342,8 +334,7 @@ class ParticleTracks:
 
     def manage(self, tracks: list[Track]) -> list[Track]:
         cfg = self.scorer.config
-        return prune_and_merge(tracks, cfg.track_prune_nats, cfg.track_merge_m, cfg.track_merge_deg,
-                               family_nats=cfg.depth_prune_nats)
+        return prune_and_merge(tracks, cfg.track_prune_nats, cfg.track_merge_m, cfg.track_merge_deg)
 
 
 def screen(scorer: Scorer, frames: dict[int, Frame], histories: list, alternatives: list[Alternative],

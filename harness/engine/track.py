@@ -111,8 +111,7 @@ class Track:
 
     id: unique within a sequence; origin: how it was spawned (``lead``, ``turn+90``, ``turn180``, ``turn-90``,
     ``twin``, ``given``; prefixed ``walk/`` for a track of one primitive); primitive: the one primitive the track
-    hypothesises (its belief is restricted to it), or None for a belief over all; family: the id shared by
-    depth siblings spawned from one cloud at several depths (None: no siblings); recognizer: its belief;
+    hypothesises (its belief is restricted to it), or None for a belief over all; recognizer: its belief;
     cloud: its particles (None when the pose is given);
     log_evidence: tempered nats since the first frame with flows; pose: this frame's filter estimate
     ``(position (3,), quaternion (4,))`` and pose_std ``(3,)`` the position std recovery may use around it;
@@ -122,12 +121,11 @@ class Track:
     """
 
     def __init__(self, track_id: int, origin: str, recognizer: Recognizer, cloud: ParticleCloud | None = None, *,
-                 primitive: int | None = None, family: int | None = None, memory: int = 0,
+                 primitive: int | None = None, memory: int = 0,
                  log_evidence: float = 0.0, parent: int | None = None):
         self.id = int(track_id)
         self.origin = origin
         self.primitive = primitive
-        self.family = family
         self.parent = parent
         self.recognizer = recognizer
         self.cloud = cloud
@@ -264,22 +262,12 @@ class Track:
                            self.recognizer.posterior)
 
 
-def prune_and_merge(tracks: list[Track], prune_nats: float, merge_m: float, merge_deg: float, *,
-                    family_nats: float = np.inf) -> list[Track]:
-    """The tracks worth keeping, most evidence first: those within ``prune_nats`` of the best and within
-    ``family_nats`` of the best of their family (depth siblings), and of two that met (positions within
-    ``merge_m``, orientations within ``merge_deg``) and hypothesise the same primitive (or both any) only the one
-    with more evidence: a primitive's own best pose is kept until the evidence drops it."""
+def prune_and_merge(tracks: list[Track], prune_nats: float, merge_m: float, merge_deg: float) -> list[Track]:
+    """The tracks worth keeping, most evidence first: those within ``prune_nats`` of the best, and of two that met
+    (positions within ``merge_m``, orientations within ``merge_deg``) and hypothesise the same primitive (or both
+    any) only the one with more evidence: a primitive's own best pose is kept until the evidence drops it."""
     best = max(t.log_evidence for t in tracks)
-    family_best: dict[int, float] = {}
-    for t in tracks:
-        if t.family is not None:
-            family_best[t.family] = max(family_best.get(t.family, -np.inf), t.log_evidence)
-    kept = sorted((t for t in tracks if t.log_evidence >= best - prune_nats
-                   and (t.family is None or t.log_evidence >= family_best[t.family] - family_nats)),
-                  key=lambda t: -t.log_evidence)
-    if not kept:
-        return []
+    kept = sorted((t for t in tracks if t.log_evidence >= best - prune_nats), key=lambda t: -t.log_evidence)
     # Which pairs met, all at once (a track a pair of scalars each was a tenth of a late frame's Python).
     pos = np.array([t.pose[0] for t in kept])
     quat = np.array([t.pose[1] for t in kept])
