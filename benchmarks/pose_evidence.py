@@ -28,6 +28,11 @@ evidence (``scoring.path_class_evidence``, a track that believed only it) along 
 true path shifted sideways as a whole (camera x) by each of these centimetres, both ways. Per class it prints
 the true class's margin over the best other class at the true path (median and smallest), and in how many runs
 a shift of at most each size gives another class the lead.
+
+``--turns 10 20 30 45 60`` also scores the true path turned about the body's vertical by each of these angles
+(degrees), both ways, and prints per class the truth's margin over each turned path (median over runs) and how
+often the truth beats every one of them: how sharply the evidence tells the heading near the truth, apart from
+the quarter and half turns above.
 """
 
 from __future__ import annotations
@@ -46,7 +51,7 @@ CURVE_POINTS = 10
 EARLY_FRAMES = 8        # the first frames with flows whose per-frame margins ``print_early`` shows
 
 
-def _one(job, shifts: tuple = ()) -> dict:
+def _one(job, shifts: tuple = (), turns: tuple = ()) -> dict:
     run, overrides = job
     from harness.evaluation.metrics import heading_error_curve
     from harness.engine.model import EngineModel
@@ -75,10 +80,12 @@ def _one(job, shifts: tuple = ()) -> dict:
     for shift in sorted({0.0, *shifts, *(-s for s in shifts)}) if shifts else ():
         class_evidence = path_class_evidence(model, tc, obs, pos + np.array([shift / 100.0, 0.0, 0.0]), quat)
         margins[shift] = float(class_evidence[true_class] - np.delete(class_evidence, true_class).max())
+    near = {a: evidence["truth"] - float(path_recognition(model, tc, obs, pos, turned(quat, np.deg2rad(a)))[0].sum())
+            for a in sorted({*turns, *(-t for t in turns)})}     # the truth's margin over the path turned by a
     first = int(np.argmax(obs.counts > 0))
     early = {a: (per_frame["truth"] - per_frame[a])[first:first + EARLY_FRAMES] for a in ALTERNATIVES}
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, **evidence,
-            "recognised": recognised, "margins": margins, "early": early,
+            "recognised": recognised, "margins": margins, "early": early, "near": near,
             "causal": {group: causal_choice(per_frame, heading, names) for group, names in CAUSAL_GROUPS.items()},
             "motion": motion_so_far(obs)}
 
@@ -123,10 +130,12 @@ def main() -> None:
     dev_runs.add_arguments(ap)
     ap.add_argument("--shifts", type=float, nargs="*", default=[],
                     help="sideways shifts (cm) of the true path at which every class is scored (module docstring)")
+    ap.add_argument("--turns", type=float, nargs="*", default=[],
+                    help="turns (deg, both ways) of the true path to score against it (module docstring)")
     args = ap.parse_args()
     runs = dev_runs.selected(args, pick=np.random.default_rng(0))
     t0 = time.perf_counter()
-    rows = dev_runs.map_runs(partial(_one, shifts=tuple(args.shifts)), runs, args)
+    rows = dev_runs.map_runs(partial(_one, shifts=tuple(args.shifts), turns=tuple(args.turns)), runs, args)
     print(f"{'run':28s} {'condition':24s} " + " ".join(f"{a:>9s}" for a in ALTERNATIVES) + "   (truth minus "
           "alternative, tempered nats)")
     for r in rows:
@@ -160,6 +169,8 @@ def main() -> None:
     print_early(rows)
     if args.shifts:
         print_margins(rows, sorted(args.shifts))
+    if args.turns:
+        print_near_turns(rows)
     print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s")
 
 
@@ -224,6 +235,21 @@ def print_margins(rows: list[dict], shifts: list[float]) -> None:
             turned = [sum(min(v for k, v in r["margins"].items() if abs(k) <= s) < 0 for r in runs) for s in shifts]
             print(f"  {c:13s} median {np.median(at_truth):7.1f}, smallest {at_truth.min():7.1f}; turned over: "
                   + ", ".join(f"{n}/{len(runs)}" for n in turned))
+
+
+def print_near_turns(rows: list[dict]) -> None:
+    """Per condition and class: the truth's evidence minus the path turned by each angle of ``--turns`` (median
+    over runs), and the share of runs in which the truth beats every turned path."""
+    angles = sorted(rows[0]["near"])
+    print("\nthe true path against itself turned about the body's vertical (deg): the truth's evidence minus the "
+          "turned path's (tempered nats over the clip, median over runs), and the runs where the truth beats them all")
+    for cond in dict.fromkeys(r["condition"] for r in rows):
+        sub = [r for r in rows if r["condition"] == cond]
+        print(f"{cond}:  " + " ".join(f"{a:+6.0f}" for a in angles))
+        for c in sorted({r["class"] for r in sub}):
+            margin = np.array([[r["near"][a] for a in angles] for r in sub if r["class"] == c])
+            print(f"  {c:13s} " + " ".join(f"{v:6.1f}" for v in np.median(margin, axis=0))
+                  + f"   truth best {(margin > 0).all(axis=1).sum()}/{len(margin)}")
 
 
 if __name__ == "__main__":
