@@ -117,6 +117,9 @@ def test_the_compiled_recursion_equals_its_numpy_definition(database):
             np.testing.assert_allclose(rec.state_posterior[live], rows / rows.sum(axis=1, keepdims=True), rtol=1e-12,
                                        atol=1e-300)
             np.testing.assert_allclose(rec.state_posterior.sum(axis=1), 1.0)
+            # A primitive outside the belief keeps its start distribution's shape.
+            start = 0.95 * database.startprob_ + 0.05 / la.shape[1]
+            np.testing.assert_allclose(rec.state_posterior[~live], start[~live], rtol=1e-12)
         if restrict is not None:
             assert rec.class_posterior[1] == 0.0 and not rec.active()[1].any()
 

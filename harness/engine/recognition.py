@@ -35,7 +35,7 @@ class Recognizer:
         with np.errstate(divide="ignore"):
             self._log_start = np.log(start) - np.log(C)
         self._trans = np.asarray(db.transmat_, dtype=float)
-        self._log_start_shape = self._log_start.copy()
+        self._start_states = _state_rows(self._log_start)    # a primitive outside the belief keeps these
         self._log_prune = np.log(prune) if prune > 0 else -np.inf
         self.reset()
 
@@ -103,7 +103,7 @@ class Recognizer:
         """The posteriors and active states of the current ``log_alpha``, computed together once
         (``_derived``)."""
         if not self._derived:
-            self._derived = _derived(self.log_alpha, self._log_start_shape, self._log_prune)
+            self._derived = _derived(self.log_alpha, self._start_states, self._log_prune)
         return self._derived
 
     @property
@@ -154,6 +154,11 @@ def _updated(log_alpha, active, log_b):
     ``None``), normalised; returns it and the normaliser ``log sum exp``."""
     C, K = log_alpha.shape
     out = log_alpha.copy()
+    # A primitive outside the belief (-inf throughout) stays so and adds nothing: its row is skipped (a track of
+    # one primitive leaves nine of ten rows so).
+    inside = np.empty(C, dtype=np.bool_)
+    for c in range(C):
+        inside[c] = np.isfinite(log_alpha[c].max())
     if log_b is not None:
         worst = np.inf
         for c in range(C):
@@ -161,48 +166,70 @@ def _updated(log_alpha, active, log_b):
                 if active[c, k]:
                     worst = min(worst, log_b[c, k])
         for c in range(C):
-            for k in range(K):
-                out[c, k] += log_b[c, k] if active[c, k] else worst
+            if inside[c]:
+                for k in range(K):
+                    out[c, k] += log_b[c, k] if active[c, k] else worst
     top = out.max()
     shift = top if np.isfinite(top) else 0.0
     acc = 0.0
     for c in range(C):
-        for k in range(K):
-            acc += np.exp(out[c, k] - shift)
+        if inside[c]:
+            for k in range(K):
+                acc += np.exp(out[c, k] - shift)
     norm = np.log(acc) + shift if acc > 0.0 else -np.inf
     for c in range(C):
-        for k in range(K):
-            out[c, k] -= norm
+        if inside[c]:
+            for k in range(K):
+                out[c, k] -= norm
     return out, norm
 
 
 @numba.njit(cache=True)
-def _derived(log_alpha, log_start_shape, log_prune):
-    """The joint posterior ``(C, K)``, the state posterior per primitive ``(C, K)``, the class posterior
-    ``(C,)`` and the states worth evaluating ``(C, K)`` (at least ``log_prune`` of their primitive's best, and
-    possible) of a log joint posterior."""
+def _state_row(row, out):
+    """``out = exp(row - max) / sum``: a primitive's state posterior from its row of a log joint posterior."""
+    best = row.max()
+    z = 0.0
+    for k in range(len(row)):
+        out[k] = np.exp(row[k] - best)
+        z += out[k]
+    for k in range(len(row)):
+        out[k] /= z
+
+
+@numba.njit(cache=True)
+def _state_rows(log_alpha):
+    """``(C, K)``: every primitive's state posterior (``_state_row``)."""
+    out = np.empty(log_alpha.shape)
+    for c in range(log_alpha.shape[0]):
+        _state_row(log_alpha[c], out[c])
+    return out
+
+
+@numba.njit(cache=True)
+def _derived(log_alpha, start_states, log_prune):
+    """The joint posterior ``(C, K)``, the state posterior per primitive ``(C, K)`` (``start_states``' row for a
+    primitive outside the belief, -inf throughout), the class posterior ``(C,)`` and the states worth evaluating
+    ``(C, K)`` (at least ``log_prune`` of their primitive's best, and possible) of a log joint posterior."""
     C, K = log_alpha.shape
-    post = np.empty((C, K))
+    post = np.zeros((C, K))
     state = np.empty((C, K))
-    cls = np.empty(C)
-    active = np.empty((C, K), dtype=np.bool_)
+    cls = np.zeros(C)
+    active = np.zeros((C, K), dtype=np.bool_)
     top = log_alpha.max()
     total = 0.0
     for c in range(C):
-        for k in range(K):
-            post[c, k] = np.exp(log_alpha[c, k] - top)
-            total += post[c, k]
+        if np.isfinite(log_alpha[c].max()):
+            for k in range(K):
+                post[c, k] = np.exp(log_alpha[c, k] - top)
+                total += post[c, k]
     for c in range(C):
-        row = log_alpha[c] if np.isfinite(log_alpha[c].max()) else log_start_shape[c]
-        best = row.max()
-        z = 0.0
-        for k in range(K):
-            state[c, k] = np.exp(row[k] - best)
-            z += state[c, k]
         own = log_alpha[c].max()
+        if not np.isfinite(own):            # outside the belief: no mass, nothing to evaluate
+            state[c] = start_states[c]
+            continue
+        _state_row(log_alpha[c], state[c])
         mass = 0.0
         for k in range(K):
-            state[c, k] /= z
             post[c, k] /= total
             mass += post[c, k]
             active[c, k] = (log_alpha[c, k] >= own + log_prune) and np.isfinite(log_alpha[c, k])
