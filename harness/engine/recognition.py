@@ -216,15 +216,16 @@ def _derived(log_alpha, start_states, log_prune):
     cls = np.zeros(C)
     active = np.zeros((C, K), dtype=np.bool_)
     top = log_alpha.max()
+    own = np.empty(C)                       # each primitive's best state (-inf: outside the belief)
     total = 0.0
     for c in range(C):
-        if np.isfinite(log_alpha[c].max()):
+        own[c] = log_alpha[c].max()
+        if np.isfinite(own[c]):
             for k in range(K):
                 post[c, k] = np.exp(log_alpha[c, k] - top)
                 total += post[c, k]
     for c in range(C):
-        own = log_alpha[c].max()
-        if not np.isfinite(own):            # outside the belief: no mass, nothing to evaluate
+        if not np.isfinite(own[c]):         # outside the belief: no mass, nothing to evaluate
             state[c] = start_states[c]
             continue
         _state_row(log_alpha[c], state[c])
@@ -232,7 +233,7 @@ def _derived(log_alpha, start_states, log_prune):
         for k in range(K):
             post[c, k] /= total
             mass += post[c, k]
-            active[c, k] = (log_alpha[c, k] >= own + log_prune) and np.isfinite(log_alpha[c, k])
+            active[c, k] = (log_alpha[c, k] >= own[c] + log_prune) and np.isfinite(log_alpha[c, k])
         cls[c] = mass
     cls /= cls.sum()
     return post, state, cls, active
