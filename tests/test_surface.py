@@ -4,7 +4,7 @@ import pytest
 from scipy import stats
 
 from harness.body import sample_surface
-from harness.body.surface import BOX, CAPSULE, CYLINDER, SPHERE, _sample_geom, geom_area, geom_sdf
+from harness.body.surface import BOX, CAPSULE, CYLINDER, SPHERE, _sample_geom, even_surface, geom_area, geom_sdf
 
 
 def _in_geom_frame(body, points):
@@ -101,3 +101,31 @@ def test_zero_and_negative_counts(body):
     assert len(sample_surface(body, 0, np.random.default_rng(0))) == 0
     with pytest.raises(ValueError, match=">= 0"):
         sample_surface(body, -1, np.random.default_rng(0))
+
+
+def test_even_surface_shares_and_covering(body):
+    """The engine's evenly spread sample: each geom holds its share of the exposed surface (estimated
+    independently from a large area-uniform sample) up to the rounding and the candidates' sampling noise, and
+    within each geom farthest-point selection leaves no candidate farther from the chosen points than the
+    chosen points are from each other (the greedy rule's covering guarantee)."""
+    n, oversample, seed = 150, 8, 11
+    pts = even_surface(body, n, np.random.default_rng(seed), oversample=oversample)
+    assert len(pts) == n and len(np.unique(pts.local, axis=0)) == n
+    reference = sample_surface(body, 40000, np.random.default_rng(12))
+    for g in body.body_geoms:
+        share = np.mean(reference.geom == g)
+        # Rounding (1) plus three standard deviations of a count estimated from n * oversample candidates.
+        margin = 1.0 + 3.0 * np.sqrt(n * share * (1.0 - share) / oversample)
+        assert abs(np.sum(pts.geom == g) - n * share) <= margin
+    candidates = sample_surface(body, oversample * n, np.random.default_rng(seed))   # the same draw
+    for g in np.unique(pts.geom):
+        chosen = pts.local[pts.geom == g]
+        if len(chosen) < 2:
+            continue
+        mine = candidates.local[candidates.geom == g]
+        covering = np.max(np.min(np.linalg.norm(mine[:, None] - chosen[None], axis=2), axis=1))
+        pairwise = np.linalg.norm(chosen[:, None] - chosen[None], axis=2)
+        assert covering <= np.min(pairwise[np.triu_indices(len(chosen), 1)]) + 1e-12
+    # The same generator gives the same points.
+    again = even_surface(body, n, np.random.default_rng(seed), oversample=oversample)
+    np.testing.assert_array_equal(again.local, pts.local)

@@ -180,3 +180,35 @@ def sample_surface(body: BodyModel, n: int, rng: np.random.Generator, exclude_in
         have += int(keep.sum())
     body_id, geom, local, normal = (np.concatenate(parts)[:n] for parts in zip(*chunks))
     return SurfacePoints(body_id, geom, local, normal)
+
+
+def even_surface(body: BodyModel, n: int, rng: np.random.Generator, oversample: int = 8) -> SurfacePoints:
+    """``n`` points spread evenly over the humanoid's exposed surface: ``oversample`` times as many area-uniform
+    candidates (``sample_surface``); each geom gets its candidates' share of ``n`` (largest remainders), chosen
+    among them by farthest-point selection (each next point the candidate farthest from those chosen)."""
+    cand = sample_surface(body, oversample * n, rng)
+    geoms = body.body_geoms
+    counts = np.array([np.sum(cand.geom == g) for g in geoms])
+    exact = n * counts / counts.sum()
+    share = np.floor(exact).astype(int)
+    share[np.argsort(share - exact)[:n - share.sum()]] += 1
+    chosen = []
+    for g, k in zip(geoms, share):
+        mine = np.flatnonzero(cand.geom == g)
+        k = min(k, len(mine))
+        if k == 0:
+            continue
+        pts = cand.local[mine]
+        first = int(rng.integers(len(mine)))
+        picks = [first]
+        dist = np.linalg.norm(pts - pts[first], axis=1)
+        for _ in range(k - 1):
+            i = int(np.argmax(dist))
+            picks.append(i)
+            dist = np.minimum(dist, np.linalg.norm(pts - pts[i], axis=1))
+        chosen.extend(mine[picks])
+    missing = n - len(chosen)
+    if missing:
+        rest = np.setdiff1d(np.arange(len(cand)), chosen)
+        chosen.extend(rest[:missing])
+    return cand.subset(np.array(chosen))
