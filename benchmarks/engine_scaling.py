@@ -4,7 +4,7 @@ grow, with the fitted exponent of each (the slope of log time against log size).
     MUJOCO_GL=egl python benchmarks/engine_scaling.py [--frames 12] [--quick]
 
 One size changes at a time; the others stay at the default (500 particles, 100 markers of which about 41 are
-visible per frame, 150 model points, 10 primitives). The tracks are kept at a fixed number (no pruning, no
+visible per frame, 120 model points, 10 primitives). The tracks are kept at a fixed number (no pruning, no
 merging) so that a frame's cost is that of the sizes it was given: the default run keeps every primitive's
 five spawned tracks; the "tracks" sweep runs without tracks per primitive and spawns 1, 2, 3 or 5 (the lead,
 its turns and its twin). More classes than the ten primitives are copies of the database's HMMs under new

@@ -2,8 +2,9 @@
 
     MUJOCO_GL=egl python benchmarks/engine_speed.py [--reference COMMIT] [--repeats N] [--profile]
 
-10 primitives (6 demos each), each engine's own default number of particles (``--particles`` sets one for
-both), 100 markers, 150 model points, one process. The
+10 primitives (6 demos each), each engine's own default number of particles and model points (``--particles``
+and ``--points`` set one for both; this engine has 120 evenly spread points since 2026-12-06, the engines
+before it 150 drawn at random), 100 markers, one process. The
 observations and the database are made once with this checkout and written to a temporary directory (one-sided
 for a reference from before the both-handed database, which knows one chain only); the engine
 of this checkout tracks them in this process (its stages and the phases of a clip), then this checkout and
@@ -50,9 +51,10 @@ from harness.body import BodyModel
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
 from harness.observation import Observation
 db = MotionDatabase.load(sys.argv[1])
-particles = {} if sys.argv[2] == "default" else {"particles": int(sys.argv[2])}
-tracker = Tracker(db, BodyModel.load(), TrackerConfig(model_points=int(sys.argv[3]), **particles,
-                                                      **json.loads(sys.argv[4])), rng=np.random.default_rng(1))
+sizes = {} if sys.argv[2] == "default" else {"particles": int(sys.argv[2])}
+sizes |= {} if sys.argv[3] == "default" else {"model_points": int(sys.argv[3])}
+tracker = Tracker(db, BodyModel.load(), TrackerConfig(**sizes, **json.loads(sys.argv[4])),
+                  rng=np.random.default_rng(1))
 out = []
 for i, path in enumerate(sys.argv[5:]):
     obs = Observation.load(path)
@@ -65,22 +67,22 @@ print(json.dumps(out))
 """
 
 
-def _times(tree: Path, db_path: Path, obs_paths: list[Path], particles: int | None, points: int,
+def _times(tree: Path, db_path: Path, obs_paths: list[Path], particles: int | None, points: int | None,
            settings: dict) -> tuple[float, float]:
     """ms per frame of ``Tracker.run`` (both passes where the engine has two) and of its causal loop (the
     whole run for an engine without per-stage timing) of the engine checked out in ``tree``, on the files, in a
     subprocess, with engine ``settings``."""
     env = dict(_USER_ENV, PYTHONPATH=str(tree))
-    done = subprocess.run([sys.executable, "-c", _TIMING_SCRIPT, str(db_path), str(particles or "default"), str(points),
-                           json.dumps(settings), *map(str, obs_paths)], cwd=tree, env=env, check=True,
-                          capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-c", _TIMING_SCRIPT, str(db_path), str(particles or "default"),
+                           str(points or "default"), json.dumps(settings), *map(str, obs_paths)], cwd=tree, env=env,
+                          check=True, capture_output=True, text=True)
     times = json.loads(done.stdout.strip().splitlines()[-1])
     frames = sum(n for _, _, n in times)
     return (1e3 * sum(t for t, _, _ in times) / frames,
             1e3 * sum(t if c is None else c for t, c, _ in times) / frames)
 
 
-def side_by_side(commit: str, db_path: Path, obs_paths: list[Path], particles: int | None, points: int,
+def side_by_side(commit: str, db_path: Path, obs_paths: list[Path], particles: int | None, points: int | None,
                  repeats: int, settings: dict) -> tuple[list, list]:
     """This checkout's (with engine ``settings``) and ``commit``'s (its defaults) ``(whole run, causal loop)`` ms
     per frame, ``repeats`` times each, alternating which runs first."""
@@ -164,7 +166,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--classes", nargs="*", default=["walk", "kick", "jumping_jack", "squat", "wave"])
     ap.add_argument("--particles", type=int, default=None, help="particles of both engines (default: each its own)")
-    ap.add_argument("--points", type=int, default=150)
+    ap.add_argument("--points", type=int, default=None, help="model points of both engines (default: each its own)")
     ap.add_argument("--reference", default=DEFAULT_REFERENCE, help="git commit of the reference engine "
                                                                    "('none' to skip it)")
     ap.add_argument("--repeats", type=int, default=3, help="alternating runs of each engine for the ratio")
@@ -189,12 +191,13 @@ def main() -> None:
             obs_paths.append(Path(tmp) / f"obs{i}.npz")
             obs.save(obs_paths[-1])
         t0 = time.perf_counter()
-        particles = {} if args.particles is None else {"particles": args.particles}
+        sizes = {} if args.particles is None else {"particles": args.particles}
+        sizes |= {} if args.points is None else {"model_points": args.points}
         settings = settings_from_strings(args.set)
-        tracker = Tracker(db, body, TrackerConfig(model_points=args.points, **particles, **settings),
-                          rng=np.random.default_rng(1))
+        tracker = Tracker(db, body, TrackerConfig(**sizes, **settings), rng=np.random.default_rng(1))
         print(f"database transform (once): {1e3 * (time.perf_counter() - t0):.0f} ms for "
-              f"{db.means_.shape[0] * db.means_.shape[1]} states x {args.points} points")
+              f"{db.means_.shape[0] * db.means_.shape[1]} states x {tracker.config.model_points} points, "
+              f"{tracker.config.particles} particles")
         tracker.run(clips[0])
         total, causal, frames, parts, phases = 0.0, 0.0, 0, {}, {}
         for c, obs in zip(args.classes, clips[1:]):

@@ -45,7 +45,7 @@ def test_a_five_line_scenario_gets_the_documented_defaults():
     assert s.database.fps == 30.0 and s.test.demos_per_class == 2 and s.test.split == "heldout"
     # A swept key's section holds the first condition's value (its unswept value is never run).
     assert (s.engine.particles, s.engine.model_points, s.engine.model_seed, s.engine.init_distance) == \
-        (50, 150, 7, (2.0, 8.0))
+        (50, 120, 7, (2.0, 8.0))
     assert parse_scenario({"name": "small"}).engine.particles == 500
     assert s.methods == ("full", "full_smoothed", "gt_base", "no_database", "joint_space")
 

@@ -18,7 +18,8 @@ class TrackerConfig:
                                              # 101-103, against no cap:
                                              # `full` 0 fixed, 1 lost, heading -0.5 deg, smoothed 5 / 1 and
                                              # -6.0 deg, 36% less time; 25: 4 / 4; docs/engine.md)
-    model_points: int = 150                  # the engine's own surface sample
+    model_points: int = 120                  # the engine's own surface sample, spread evenly
+                                             # (150 drawn at random until 2026-12-06; docs/engine.md, "Speed")
     model_seed: int = 7                      # ... seeded independently of the markers
     init_distance: tuple[float, float] = (2.0, 8.0)    # prior range of the subject's distance
     init_elevation: tuple[float, float] = (-10.0, 40.0)  # prior range of the camera's pitch (no gravity given)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.body.model import BodyModel
-from harness.body.surface import SurfacePoints, sample_surface
+from harness.body.surface import SurfacePoints, even_surface
 from harness.engine.database import MotionDatabase
 from harness.engine.transform import PointDistributions, database_point_distributions, patch_std
 
@@ -17,7 +17,8 @@ from harness.engine.transform import PointDistributions, database_point_distribu
 class EngineModel:
     """The database in the body frame, ready for the image.
 
-    points: the engine's own area-uniform sample of the body surface (seeded independently of any marker);
+    points: the engine's own sample of the body surface, spread evenly by area (``even_surface``; seeded
+    independently of any marker);
     spread: the per-axis std of the surface patch one point stands for (m); dists: every state's point
     distributions, flattened to ``S = C * K`` in (class, state) order; db_means, db_covars: ``(S, 106)``;
     body_extent: the vertical extent (m) of the model points that ``particle_filter.depth_guess`` compares the
@@ -37,7 +38,7 @@ class EngineModel:
     @classmethod
     def build(cls, db: MotionDatabase, body: BodyModel, model_points: int, model_seed: int) -> "EngineModel":
         db.validate()
-        points = sample_surface(body, model_points, np.random.default_rng(model_seed))
+        points = even_surface(body, model_points, np.random.default_rng(model_seed))
         spread = patch_std(body, model_points)
         C, K, D = db.means_.shape
         dists = database_point_distributions(db, body, points, spread)
