@@ -186,16 +186,19 @@ def even_surface(body: BodyModel, n: int, rng: np.random.Generator, oversample: 
     """``n`` points spread evenly over the humanoid's exposed surface: ``oversample`` times as many area-uniform
     candidates (``sample_surface``); each geom gets its candidates' share of ``n`` (largest remainders), chosen
     among them by farthest-point selection (each next point the candidate farthest from those chosen)."""
+    if oversample < 1:
+        raise BodyError(f"oversample must be >= 1, got {oversample}")
     cand = sample_surface(body, oversample * n, rng)
+    if n == 0:
+        return cand
     geoms = body.body_geoms
     counts = np.array([np.sum(cand.geom == g) for g in geoms])
     exact = n * counts / counts.sum()
     share = np.floor(exact).astype(int)
-    share[np.argsort(share - exact)[:n - share.sum()]] += 1
+    share[np.argsort(share - exact)[:n - share.sum()]] += 1      # at most a geom's candidates: oversample >= 1
     chosen = []
     for g, k in zip(geoms, share):
         mine = np.flatnonzero(cand.geom == g)
-        k = min(k, len(mine))
         if k == 0:
             continue
         pts = cand.local[mine]
@@ -207,8 +210,4 @@ def even_surface(body: BodyModel, n: int, rng: np.random.Generator, oversample: 
             picks.append(i)
             dist = np.minimum(dist, np.linalg.norm(pts - pts[i], axis=1))
         chosen.extend(mine[picks])
-    missing = n - len(chosen)
-    if missing:
-        rest = np.setdiff1d(np.arange(len(cand)), chosen)
-        chosen.extend(rest[:missing])
     return cand.subset(np.array(chosen))
