@@ -191,14 +191,12 @@ def even_surface(body: BodyModel, n: int, rng: np.random.Generator, oversample: 
     cand = sample_surface(body, oversample * n, rng)
     if n == 0:
         return cand
-    geoms = body.body_geoms
-    counts = np.array([np.sum(cand.geom == g) for g in geoms])
-    exact = n * counts / counts.sum()
+    members = [np.flatnonzero(cand.geom == g) for g in body.body_geoms]
+    exact = n * np.array([len(m) for m in members]) / len(cand)
     share = np.floor(exact).astype(int)
     share[np.argsort(share - exact)[:n - share.sum()]] += 1      # at most a geom's candidates: oversample >= 1
     chosen = []
-    for g, k in zip(geoms, share):
-        mine = np.flatnonzero(cand.geom == g)
+    for mine, k in zip(members, share):
         if k == 0:
             continue
         pts = cand.local[mine]
