@@ -47,11 +47,11 @@ _LANES = 8     # the flows are padded to a multiple of this (doubles in a 512-bi
 
 
 @numba.njit(cache=True, fastmath=FAST, error_model="numpy")
-def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, points, dens, arg, bits):
+def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, points, dens, arg, scale):
     """The Gaussian densities of the flows (``(4, M)`` columns) under the visible points of one hypothesis
     (position and velocity, the observation noise ``pos_var``/``vel_var`` added to each covariance):
     ``dens[i, m]`` for visible point ``i`` (model point ``points[i]``), zero beyond the position gate. Returns
-    the number of visible points; ``arg``, ``bits``: work arrays of ``M``.
+    the number of visible points; ``arg``, ``scale``: work arrays of ``M``.
 
     Every flow is scored against every visible point in one dense pass that vectorises (``vector_math``):
     with a few dozen flows, a band of them per point (the flows sorted by ``u``) saves less than its
@@ -59,7 +59,6 @@ def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var
     P = pix.shape[0]
     M = flows.shape[1]
     us, vs, dus, dvs = flows[0], flows[1], flows[2], flows[3]
-    scale = bits.view(np.float64)
     n = 0
     for p in range(P):
         if visibility[p] <= 0.0:
@@ -84,7 +83,7 @@ def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var
             e = -0.5 * (d2 + ja * x * x + 2.0 * jb * x * y + jc * y * y)
             e = e if d2 <= _GATE else -np.inf
             arg[m] = e
-            mantissa, bits[m] = exp_parts(min(max(e, EXP_MIN), 709.0))
+            mantissa, scale[m] = exp_parts(min(max(e, EXP_MIN), 709.0))
             row[m] = norm * mantissa
         for m in range(M):
             row[m] = row[m] * scale[m] if arg[m] >= EXP_MIN else 0.0
@@ -94,13 +93,12 @@ def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var
 
 
 @numba.njit(cache=True, fastmath=FAST, error_model="numpy")
-def _position_densities(flows, pix, pix_cov, pos_var, points, n, dens, arg, bits):
+def _position_densities(flows, pix, pix_cov, pos_var, points, n, dens, arg, scale):
     """The position factor of ``_densities``' densities alone, under the same ``n`` visible points ``points[:n]``
     and gate: ``dens[i, m] = N(u_m, v_m; pix_p, pix_cov_p + pos_var I)`` for ``p = points[i]``, zero beyond the
-    gate. ``arg``, ``bits``: work arrays of ``M``."""
+    gate. ``arg``, ``scale``: work arrays of ``M``."""
     M = flows.shape[1]
     us, vs = flows[0], flows[1]
-    scale = bits.view(np.float64)
     for i in range(n):
         p = points[i]
         a, b, c = pix_cov[p, 0, 0] + pos_var, pix_cov[p, 0, 1], pix_cov[p, 1, 1] + pos_var
@@ -114,7 +112,7 @@ def _position_densities(flows, pix, pix_cov, pos_var, points, n, dens, arg, bits
             y = vs[m] - v0
             d2 = ia * x * x + 2.0 * ib * x * y + ic * y * y
             arg[m] = d2
-            mantissa, bits[m] = exp_parts(-0.5 * min(max(d2, 0.0), _GATE))   # padding flows (NaN): masked below
+            mantissa, scale[m] = exp_parts(-0.5 * min(max(d2, 0.0), _GATE))   # padding flows (NaN): masked below
             row[m] = norm * mantissa
         for m in range(M):
             row[m] = row[m] * scale[m] if arg[m] <= _GATE else 0.0
@@ -175,8 +173,8 @@ def _mixture(dens, points, n, visibility, held, p_in, p_out, iterations, smoothi
 @numba.njit(cache=True)
 def _work(M, P):
     """Work arrays of one hypothesis: the densities and their points (``_densities``), the exponential's
-    arguments and bits, and the weights, inlier densities and inverses of ``_mixture``."""
-    return (np.empty((P, M)), np.empty(P, dtype=np.int64), np.empty(M), np.empty(M, dtype=np.int64), np.empty(P),
+    arguments and powers of two, and the weights, inlier densities and inverses of ``_mixture``."""
+    return (np.empty((P, M)), np.empty(P, dtype=np.int64), np.empty(M), np.empty(M), np.empty(P),
             np.empty(M), np.empty(M))
 
 
@@ -185,8 +183,8 @@ def _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, 
                 weight_iterations, smoothing, work):
     """The densities and the adapted mixture of one hypothesis, in ``work``; returns the number of visible
     points."""
-    dens, points, arg, bits, weight, total, inv = work
-    n = _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, points, dens, arg, bits)
+    dens, points, arg, scale, weight, total, inv = work
+    n = _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, points, dens, arg, scale)
     _mixture(dens, points, n, visibility, held, p_in, p_out, weight_iterations, smoothing, weight, total, inv)
     return n
 
@@ -216,7 +214,7 @@ def _velocity_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibi
     M = flows.shape[1]
     out = np.empty((H, n_flows))
     work = _work(M, P)
-    dens, points, arg, bits, weight, total, _ = work
+    dens, points, arg, scale, weight, total, _ = work
     position = np.empty((P, M))
     total_position = np.empty(M)
     joint, given = np.empty(n_flows), np.empty(n_flows)
@@ -225,7 +223,7 @@ def _velocity_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibi
     for h in range(H):
         n = _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], held[h], pos_var, vel_var,
                         p_in, p_out, weight_iterations, smoothing, work)
-        _position_densities(flows, pix[h], pix_cov[h], pos_var, points, n, position, arg, bits)
+        _position_densities(flows, pix[h], pix_cov[h], pos_var, points, n, position, arg, scale)
         total_position[:] = 0.0
         for i in range(n):
             w = weight[i]

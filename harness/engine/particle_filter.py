@@ -313,7 +313,7 @@ def pose_mixture_log_density(pos, quat, mean_pos, mean_quat, log_w, pos_std, rot
     mx, my, mz, bws, bxs, bys, bzs, lws = c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]
     term = np.empty(K)
     dens = np.empty(K)
-    bits = np.empty(K, dtype=np.int64)
+    powers = np.empty(K)
     for n in range(N):
         p0, p1, p2 = pos[n, 0] * ip0, pos[n, 1] * ip1, pos[n, 2] * ip2
         aw, ax, ay, az = quat[n, 0], quat[n, 1], quat[n, 2], quat[n, 3]
@@ -338,7 +338,7 @@ def pose_mixture_log_density(pos, quat, mean_pos, mean_quat, log_w, pos_std, rot
             continue
         for k in range(K):
             term[k] -= top
-        exp_into(term, dens, bits)
+        exp_into(term, dens, powers)
         out[n] = top + np.log(dens.sum()) + log_norm
     return out
 
