@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 
-.PHONY: setup test evaluate regress rebaseline check bench clean
+.PHONY: setup test evaluate regress rebaseline check bench clean clean-cache
 
 setup: $(STAMP)
 
@@ -45,5 +45,10 @@ bench: $(STAMP)
 	$(PY) benchmarks/pose_evidence.py
 	$(PY) benchmarks/dask_throughput.py
 
-clean:
+clean: clean-cache
 	rm -rf $(VENV) .pytest_cache
+
+# numba caches each compiled kernel keyed on its own source file, so a kernel that inlines a function of another
+# file (harness/engine/vector_math.py) keeps its old code after an edit there: delete the caches.
+clean-cache:
+	find harness benchmarks -name '*.nbi' -delete -o -name '*.nbc' -delete
