@@ -6,6 +6,7 @@ Angular velocities are rotation vectors per second (axis times rate).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 
@@ -17,14 +18,31 @@ def normalize(q: np.ndarray) -> np.ndarray:
 def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product ``a * b`` (first rotate by ``b``, then by ``a``)."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
     out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = aw * bw - ax * bx - ay * by - az * bz
-    out[..., 1] = aw * bx + ax * bw + ay * bz - az * by
-    out[..., 2] = aw * by - ax * bz + ay * bw + az * bx
-    out[..., 3] = aw * bz + ax * by - ay * bx + az * bw
+    _hamilton(_rows(a, out.shape), _rows(b, out.shape), out.reshape(-1, 4))
     return out
+
+
+def _rows(q: np.ndarray, shape: tuple) -> np.ndarray:
+    """``q`` broadcast to ``shape`` as rows ``(n, 4)``, or as one row when it is a single quaternion."""
+    if q.size == 4:
+        return q.reshape(1, 4)
+    return (q if q.shape == shape else np.broadcast_to(q, shape)).reshape(-1, 4)
+
+
+# The engine calls these a dozen times a frame on hundreds of quaternions, where numpy's per-operation cost was
+# most of their time. Compiled without fastmath, they keep numpy's order of operations, and so its rounding.
+@numba.njit(cache=True)
+def _hamilton(a, b, out):
+    """``out[i] = a[i] * b[i]`` over rows ``(n, 4)``; a one-row ``a`` or ``b`` is used for every row."""
+    step_a, step_b = int(len(a) > 1), int(len(b) > 1)
+    for i in range(len(out)):
+        aw, ax, ay, az = a[i * step_a, 0], a[i * step_a, 1], a[i * step_a, 2], a[i * step_a, 3]
+        bw, bx, by, bz = b[i * step_b, 0], b[i * step_b, 1], b[i * step_b, 2], b[i * step_b, 3]
+        out[i, 0] = aw * bw - ax * bx - ay * by - az * bz
+        out[i, 1] = aw * bx + ax * bw + ay * bz - az * by
+        out[i, 2] = aw * by - ax * bz + ay * bw + az * bx
+        out[i, 3] = aw * bz + ax * by - ay * bx + az * bw
 
 
 def conjugate(q: np.ndarray) -> np.ndarray:
@@ -34,12 +52,19 @@ def conjugate(q: np.ndarray) -> np.ndarray:
 def to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` of unit quaternions."""
     q = np.asarray(q, dtype=float)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     out = np.empty(q.shape[:-1] + (3, 3))
-    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    _matrices(q.reshape(-1, 4), out.reshape(-1, 3, 3))
     return out
+
+
+@numba.njit(cache=True)
+def _matrices(q, out):
+    """``out[i]``: the rotation matrix of the unit quaternion ``q[i]``."""
+    for i in range(len(q)):
+        w, x, y, z = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+        out[i, 0, 0], out[i, 0, 1], out[i, 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+        out[i, 1, 0], out[i, 1, 1], out[i, 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+        out[i, 2, 0], out[i, 2, 1], out[i, 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
 
 
 def from_matrix(mat: np.ndarray) -> np.ndarray:

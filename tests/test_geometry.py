@@ -31,6 +31,26 @@ def test_multiply_composes_like_mujoco(rng):
     np.testing.assert_allclose(g.multiply(a, b), res, atol=1e-15)
 
 
+@pytest.mark.parametrize("shape_a, shape_b", [((6, 4), (6, 4)), ((6, 4), (4,)), ((1, 4), (6, 4)),
+                                              ((2, 3, 4), (3, 4)), ((2, 1, 4), (1, 3, 4)), ((0, 4), (4,))])
+def test_multiply_and_matrices_broadcast_like_numpy(rng, shape_a, shape_b):
+    """The compiled product and matrices over any leading axes: each element is MuJoCo's product of the
+    broadcast pair, and each matrix scipy's, also for rows taken with a stride."""
+    a = g.normalize(rng.normal(size=shape_a))
+    b = g.normalize(rng.normal(size=(*shape_b[:-1], 8)))[..., ::2]          # not contiguous
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    out = g.multiply(a, b)
+    shape = np.broadcast_shapes(a.shape, b.shape)
+    assert out.shape == shape
+    for i in np.ndindex(shape[:-1]):
+        ai, bi = np.broadcast_to(a, shape)[i], np.broadcast_to(b, shape)[i]
+        res = np.empty(4)
+        mujoco.mju_mulQuat(res, np.ascontiguousarray(ai), np.ascontiguousarray(bi))
+        np.testing.assert_allclose(out[i], res, atol=1e-15)
+    np.testing.assert_allclose(g.to_matrix(b), _scipy(b).as_matrix() if b.size else np.empty((0, 3, 3)),
+                               atol=1e-12)
+
+
 def test_exp_log_roundtrip_and_scipy(rng):
     rv = rng.normal(size=(40, 3))
     rv *= (np.pi * 0.99 / np.maximum(np.linalg.norm(rv, axis=1), np.pi))[:, None]  # angles below pi
