@@ -11,7 +11,8 @@ of this checkout tracks them in this process (its stages and the phases of a cli
 ``--reference`` (a git commit, checked out into a temporary worktree; default: the engine before issue 22's
 speed work) each time the same files in subprocesses, ``--repeats`` times, alternating which goes first: the
 machine's load drifts by more than a small change is worth, and alternating spreads it over both. Machines
-differ in speed, so the ratio of the medians is the number to compare; the target is 60 frames per second
+differ in speed (it prints the CPU: its generation and vector width move the time by up to 1.8x), so the ratio
+of the medians is the number to compare; the target is 60 frames per second
 (16.7 ms per frame) on one core and 2.5 times the reference's speed. This engine's causal loop (the stages of
 every frame, what a live camera needs) is timed apart from its offline estimate (the backward pass, for
 evaluation), which ``Tracker.run`` also makes. Numba kernels are compiled (and cached) before timing, for both
@@ -147,6 +148,21 @@ def print_phase_times(phases: dict) -> None:
               "of the time")
 
 
+def _machine() -> str:
+    """The CPU as the kernels see it: its name, LLVM's name for its generation and its widest vectors (the
+    engine's time differs by 1.5-1.8x between an Intel core with AVX-512 and an AMD Zen 3 with AVX2 only)."""
+    import platform
+
+    import llvmlite.binding as llvm
+
+    features = llvm.get_host_cpu_features().flatten().split(",")
+    vectors = "AVX-512" if "+avx512f" in features else "AVX2" if "+avx2" in features else "no AVX2"
+    name = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                 if line.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() \
+        else platform.processor()
+    return f"{name} ({llvm.get_host_cpu_name()}, {vectors}), {os.cpu_count()} cores"
+
+
 def _knows_mirrored(commit: str) -> bool:
     """Whether the engine at ``commit`` reads both-handed database files."""
     done = subprocess.run(["git", "-C", str(ROOT), "grep", "-q", "mirrored", commit, "--", "harness/engine/database.py"],
@@ -195,6 +211,7 @@ def main() -> None:
         sizes |= {} if args.points is None else {"model_points": args.points}
         settings = settings_from_strings(args.set)
         tracker = Tracker(db, body, TrackerConfig(**sizes, **settings), rng=np.random.default_rng(1))
+        print(f"machine: {_machine()}")
         print(f"database transform (once): {1e3 * (time.perf_counter() - t0):.0f} ms for "
               f"{db.means_.shape[0] * db.means_.shape[1]} states x {tracker.config.model_points} points, "
               f"{tracker.config.particles} particles")
