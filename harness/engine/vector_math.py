@@ -55,12 +55,12 @@ def exp_parts(x):
 
     The polynomial is evaluated by Estrin's scheme (pairs of terms joined by ``r^2``, ``r^4`` and ``r^8``): its
     longest chain of dependent multiply-adds is 5 against Horner's 13, and the density loops, which have little
-    else to overlap with that chain, were bound by its latency (22% of their time on an AMD Zen 3).
+    else to overlap with that chain, were bound by its latency (17% of the density loop's time on an AMD Zen 3).
 
     ``2^k`` is built from its bits, ``(k + 1023) << 52``, with ``k``'s integer taken from the bits of ``k + 1.5 *
     2^52`` rather than by a conversion: CPUs without AVX-512 have no vector instruction that converts doubles
-    to 64-bit integers, and the conversion, done one element at a time, cost the likelihood's loops a third of
-    their time (docs/engine.md, "Speed")."""
+    to 64-bit integers, and the conversion, done one element at a time, cost the density loop 5% of its time
+    on an AMD Zen 3 (docs/engine.md, "Speed")."""
     k = np.floor(x * _INV_LN2 + 0.5)
     r = (x - k * _LN2_HI) - k * _LN2_LO
     r2 = r * r
