@@ -48,7 +48,8 @@ bench: $(STAMP)
 clean: clean-cache
 	rm -rf $(VENV) .pytest_cache
 
-# numba caches each compiled kernel keyed on its own source file, so a kernel that inlines a function of another
-# file (harness/engine/vector_math.py) keeps its old code after an edit there: delete the caches.
+# numba's compiled kernels: one directory per version of the kernels' sources (harness.kernel_cache_dir), so
+# old versions pile up; this deletes them all (and caches kept next to the sources by other settings).
 clean-cache:
+	rm -rf harness/__pycache__/numba
 	find harness benchmarks -name '*.nbi' -delete -o -name '*.nbc' -delete

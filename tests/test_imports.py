@@ -76,3 +76,22 @@ def test_harness_has_no_import_cycles():
 def test_command_modules_do_not_import_the_cli():
     graph = import_graph()
     assert not [m for m, edges in graph.items() if "harness.cli" in edges and m != "harness.__main__"]
+
+
+def test_the_kernel_cache_follows_the_kernels_sources(tmp_path):
+    """numba reuses a kernel's cache when the kernel's own file is unchanged, even when a function it inlines
+    from another file has changed: the cache directory is per version of every file that compiles kernels,
+    and only of those."""
+    import harness
+
+    package = tmp_path / "package"
+    (package / "engine").mkdir(parents=True)
+    maths, report = package / "engine" / "maths.py", package / "report.py"
+    maths.write_text("import numba\n\n\n@numba.njit\ndef f(x):\n    return x + 1\n")
+    report.write_text("def table():\n    return 1\n")
+    first = harness.kernel_cache_dir(package)
+    assert first.parent == package / "__pycache__" / "numba"
+    report.write_text("def table():\n    return 2\n")
+    assert harness.kernel_cache_dir(package) == first
+    maths.write_text("import numba\n\n\n@numba.njit\ndef f(x):\n    return x + 2\n")
+    assert harness.kernel_cache_dir(package) != first

@@ -7,9 +7,9 @@ a few units in the last place (``tests/test_engine_parts.py``).
 ``FAST`` is the kernels' fastmath set: sums may be reordered and multiply-adds fused; nothing assumes away NaN
 or infinity. Kernels that divide inside loops also take ``error_model="numpy"`` (no zero-division branch).
 
-numba's on-disk cache of a kernel is keyed on the kernel's own file only: the kernels of other modules that
-inline these functions keep their old code after an edit here until their caches are deleted (``make
-clean-cache``).
+numba checks only a kernel's own file before it reuses the kernel's cache, and the kernels of other modules
+inline these functions: the package therefore keeps its kernels in a cache directory per version of every file
+that compiles kernels (``harness.kernel_cache_dir``), so that an edit here recompiles them.
 """
 
 from __future__ import annotations
