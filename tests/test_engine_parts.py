@@ -19,7 +19,7 @@ from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_
                                             systematic_resample, upright_orientations)
 from harness.engine.recovery import Prior, Recovery, refine_pose
 from harness.engine.transform import ImageDistributions, patch_std
-from harness.engine.vector_math import atan_ratio, exp_into
+from harness.engine.vector_math import LOG_MIN, atan_ratio, exp_into, log_normal
 from harness.errors import EngineError
 from harness.pinhole import Intrinsics, project, projection_jacobian
 
@@ -225,6 +225,26 @@ def test_the_kernels_elementary_functions_match_numpys():
     t = np.concatenate([np.linspace(0.0, 1.0, 20001)[1:], [1e-300, 1e-9, np.sqrt(2) - 1]])
     np.testing.assert_allclose([atan_ratio(v) for v in t], np.arctan(t) / t, rtol=1e-14)
     assert atan_ratio(0.0) == 1.0
+    x = np.concatenate([np.exp(np.linspace(-708.0, 709.0, 200001)), [LOG_MIN, 0.5, 1.0, 2.0, np.sqrt(2.0),
+                                                                     np.nextafter(np.sqrt(2.0), 0.0), 1.7e308]])
+    np.testing.assert_allclose([log_normal(v) for v in x], np.log(x), rtol=1e-15, atol=1e-300)
+    assert log_normal(1.0) == 0.0
+
+
+@pytest.mark.parametrize("log_out", [-33.0, -800.0])
+def test_per_flow_log_likelihood_is_the_log_of_the_mixture(rng, log_out):
+    """Each flow's log-likelihood ``log((1 - eps) total + eps U)``: by one vectorising log where the outlier term is
+    a normal double (every camera in use), by the sum of the logs where it is not; both against numpy."""
+    from harness.engine.likelihood import _per_flow
+
+    total = np.concatenate([rng.random(40) * 1e-4, [0.0, 1e-300]])
+    log_in = np.log1p(-0.05)
+    out = np.empty(len(total))
+    _per_flow(7, total, log_in, log_out, out)
+    with np.errstate(divide="ignore"):
+        np.testing.assert_allclose(out, np.logaddexp(log_in + np.log(total), log_out), rtol=1e-14)
+    _per_flow(0, total, log_in, log_out, out)
+    assert out.tolist() == [log_out] * len(total)
 
 
 def test_tempering_counts_a_frame_as_at_most_n_eff_flows():
