@@ -1,8 +1,8 @@
 """Elementary functions in a form that vectorises inside numba loops.
 
-libm's ``exp`` and ``atan`` are opaque calls to LLVM, so a loop that calls them runs one element at a time;
-written as range reductions and polynomials, the same loops run on vector registers. Both agree with numpy to
-a few units in the last place (``tests/test_engine_parts.py``).
+libm's ``exp``, ``log`` and ``atan`` are opaque calls to LLVM, so a loop that calls them runs one element at a
+time; written as range reductions and polynomials, the same loops run on vector registers. All agree with numpy
+to a few units in the last place (``tests/test_engine_parts.py``).
 
 ``FAST`` is the kernels' fastmath set: sums may be reordered and multiply-adds fused; nothing assumes away NaN
 or infinity. Kernels that divide inside loops also take ``error_model="numpy"`` (no zero-division branch).
