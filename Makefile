@@ -49,7 +49,7 @@ clean: clean-cache
 	rm -rf $(VENV) .pytest_cache
 
 # numba's compiled kernels: one directory per version of the kernels' sources (harness.kernel_cache_dir), so
-# old versions pile up; this deletes them all (and caches kept next to the sources by other settings).
+# old versions pile up; this deletes them all, and the caches numba kept next to the sources before that.
 clean-cache:
 	rm -rf harness/__pycache__/numba
 	find harness benchmarks -name '*.nbi' -delete -o -name '*.nbc' -delete

@@ -157,9 +157,10 @@ def _machine() -> str:
 
     features = llvm.get_host_cpu_features().flatten().split(",")
     vectors = "AVX-512" if "+avx512f" in features else "AVX2" if "+avx2" in features else "no AVX2"
-    name = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                 if line.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() \
-        else platform.processor()
+    cpuinfo = Path("/proc/cpuinfo")
+    names = [line.split(":", 1)[1].strip() for line in cpuinfo.read_text().splitlines()
+             if line.startswith("model name")] if cpuinfo.exists() else []
+    name = names[0] if names else platform.processor()
     return f"{name} ({llvm.get_host_cpu_name()}, {vectors}), {os.cpu_count()} cores"
 
 
