@@ -71,6 +71,47 @@ def exp_parts(x):
     return low + (r4 * r4) * high, _double((_bits(k + _ROUNDING) + 1023) << 52)
 
 
+@intrinsic
+def _bits32(typingctx, x):
+    """The int32 bit pattern of the float32 ``x``."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.int32))
+    return types.int32(types.float32), codegen
+
+
+@intrinsic
+def _single(typingctx, bits):
+    """The float32 whose bit pattern is the int32 ``bits``."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.float32))
+    return types.float32(types.int32), codegen
+
+
+# float32 constants: numba types a Python float literal as a double, which would widen a float32 loop.
+_F = np.float32
+EXP32_MIN = _F(-86.0)                     # below this, exp32_parts' power of two would not be a normal float32
+_LN2_HI32 = _F(0.693359375)               # 8 significant bits: k * _LN2_HI32 is exact for |k| < 2^16
+_LN2_LO32 = _F(-2.12194440e-4)
+_INV_LN2_32 = _F(1.4426950408889634)
+_ROUNDING32 = _F(12582912.0)              # 1.5 * 2^23: the float32 analogue of _ROUNDING
+_E = [_F(1.0 / np.prod(np.arange(1, k + 1, dtype=float))) for k in range(8)]
+_E0, _E1, _E2, _E3, _E4, _E5, _E6, _E7 = _E
+_HALF32 = _F(0.5)
+
+
+@numba.njit(inline="always", fastmath=FAST)
+def exp32_parts(x):
+    """``exp_parts`` in float32, for ``x`` (float32) in ``[EXP32_MIN, 88]``: ``exp(x) = m * 2^k`` with ``m`` by
+    the Taylor polynomial of degree 7 (truncation below 3e-9 for ``|r| <= ln(2) / 2``, under float32's unit
+    round-off 6e-8; Estrin's scheme) and ``2^k`` from the bits of ``k + 1.5 * 2^23``. A float32 vector holds twice
+    the lanes of a double one."""
+    k = np.floor(x * _INV_LN2_32 + _HALF32)
+    r = (x - k * _LN2_HI32) - k * _LN2_LO32
+    r2 = r * r
+    p = (_E0 + r * _E1) + r2 * (_E2 + r * _E3) + (r2 * r2) * ((_E4 + r * _E5) + r2 * (_E6 + r * _E7))
+    return p, _single((_bits32(k + _ROUNDING32) + np.int32(127)) << np.int32(23))
+
+
 @numba.njit(cache=True, fastmath=FAST)
 def exp_into(x, out, scale):
     """``out[i] = exp(x[i])`` (zero below ``EXP_MIN``, arguments above 709 clipped; ``exp_parts``). ``scale``:
