@@ -38,24 +38,34 @@ import numba
 import numpy as np
 
 from harness.engine.transform import ImageDistributions
-from harness.engine.vector_math import EXP_MIN, FAST, LOG_MIN, exp_parts, log_normal
+from harness.engine.vector_math import EXP32_MIN, FAST, LOG_MIN, exp32_parts, log_normal
 
 _GATE = 60.0   # squared Mahalanobis distance in position beyond which a point's term is taken as zero
+# A density below the outlier density times e^-_CUT is taken as zero: the inlier mixture (weights at most one)
+# loses at most that share of the outlier term, a flow's log-likelihood less than e^-25 = 1.4e-11. It keeps the
+# float32 densities and their products with the weights clear of subnormal numbers.
+_CUT = 25.0
 
-_TWO_PI_SQUARED = (2.0 * np.pi) ** 2
-_LANES = 8     # the flows are padded to a multiple of this (doubles in a 512-bit register; two 256-bit ones)
+_F = np.float32
+_GATE32, _HALF32, _ZERO32, _INF32 = _F(_GATE), _F(0.5), _F(0.0), _F(np.inf)
+_EXP32_MAX = _F(88.0)        # exp of float32 overflows above 88.7
+_LOG_TWO_PI_SQUARED = 2.0 * np.log(2.0 * np.pi)
+_LANES = 8     # the flows are padded to a multiple of this (float32s in a 256-bit register)
 
 
 @numba.njit(cache=True, fastmath=FAST, error_model="numpy")
-def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, points, dens, arg, scale):
-    """The Gaussian densities of the flows (``(4, M)`` columns) under the visible points of one hypothesis
-    (position and velocity, the observation noise ``pos_var``/``vel_var`` added to each covariance):
-    ``dens[i, m]`` for visible point ``i`` (model point ``points[i]``), zero beyond the position gate. Returns
-    the number of visible points; ``arg``, ``scale``: work arrays of ``M``.
+def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, log_cut, points, dens, arg, scale):
+    """The Gaussian densities of the flows (``(4, M)`` float32 columns) under the visible points of one
+    hypothesis (position and velocity, the observation noise ``pos_var``/``vel_var`` added to each covariance):
+    ``dens[i, m]`` for visible point ``i`` (model point ``points[i]``), zero beyond the position gate and below
+    ``exp(log_cut)``. Returns the number of visible points; ``arg``, ``scale``: float32 work arrays of ``M``.
 
     Every flow is scored against every visible point in one dense pass that vectorises (``vector_math``):
     with a few dozen flows, a band of them per point (the flows sorted by ``u``) saves less than its
-    bookkeeping costs."""
+    bookkeeping costs. Each point's constants are computed in double precision and the pass in float32, with
+    twice the lanes: a pixel coordinate below 10^4 is held to 10^-3 px, the Mahalanobis terms to float32's
+    unit round-off, and a density to about 1e-4 of itself where it counts (``tests/test_engine_parts.py``).
+    The normaliser enters the exponent, so no density is formed below ``exp(log_cut)``."""
     P = pix.shape[0]
     M = flows.shape[1]
     us, vs, dus, dvs = flows[0], flows[1], flows[2], flows[3]
@@ -65,28 +75,26 @@ def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var
             continue
         a, b, c = pix_cov[p, 0, 0] + pos_var, pix_cov[p, 0, 1], pix_cov[p, 1, 1] + pos_var
         inv_det_p = 1.0 / (a * c - b * b)
-        ia, ib, ic = c * inv_det_p, -b * inv_det_p, a * inv_det_p
         fa, fb, fc = flow_cov[p, 0, 0] + vel_var, flow_cov[p, 0, 1], flow_cov[p, 1, 1] + vel_var
         inv_det_f = 1.0 / (fa * fc - fb * fb)
-        ja, jb, jc = fc * inv_det_f, -fb * inv_det_f, fa * inv_det_f
-        norm = np.sqrt(inv_det_p * inv_det_f) / _TWO_PI_SQUARED
-        u0, v0, du0, dv0 = pix[p, 0], pix[p, 1], flow[p, 0], flow[p, 1]
+        ia, ib, ic = _F(c * inv_det_p), _F(-2.0 * b * inv_det_p), _F(a * inv_det_p)
+        ja, jb, jc = _F(fc * inv_det_f), _F(-2.0 * fb * inv_det_f), _F(fa * inv_det_f)
+        log_norm = _F(0.5 * np.log(inv_det_p * inv_det_f) - _LOG_TWO_PI_SQUARED)
+        u0, v0, du0, dv0 = _F(pix[p, 0]), _F(pix[p, 1]), _F(flow[p, 0]), _F(flow[p, 1])
         row = dens[n]
-        # One pass computes the argument and the exponential's polynomial (``exp_parts``) with the normaliser,
-        # a second applies the power of two and the gate: measured 14% faster than filling the arguments first.
+        # One pass computes the argument and the exponential's polynomial (``exp32_parts``), a second applies the
+        # power of two, the gate and the cut: measured 14% faster than filling the arguments first.
         for m in range(M):
             x = us[m] - u0
             y = vs[m] - v0
-            d2 = ia * x * x + 2.0 * ib * x * y + ic * y * y
+            d2 = ia * x * x + ib * x * y + ic * y * y
             x = dus[m] - du0
             y = dvs[m] - dv0
-            e = -0.5 * (d2 + ja * x * x + 2.0 * jb * x * y + jc * y * y)
-            e = e if d2 <= _GATE else -np.inf
-            arg[m] = e
-            mantissa, scale[m] = exp_parts(min(max(e, EXP_MIN), 709.0))
-            row[m] = norm * mantissa
+            e = log_norm - _HALF32 * (d2 + ja * x * x + jb * x * y + jc * y * y)
+            arg[m] = e if d2 <= _GATE32 else -_INF32
+            row[m], scale[m] = exp32_parts(min(max(e, EXP32_MIN), _EXP32_MAX))
         for m in range(M):
-            row[m] = row[m] * scale[m] if arg[m] >= EXP_MIN else 0.0
+            row[m] = row[m] * scale[m] if arg[m] >= log_cut else _ZERO32
         points[n] = p
         n += 1
     return n
@@ -95,33 +103,33 @@ def _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var
 @numba.njit(cache=True, fastmath=FAST, error_model="numpy")
 def _position_densities(flows, pix, pix_cov, pos_var, points, n, dens, arg, scale):
     """The position factor of ``_densities``' densities alone, under the same ``n`` visible points ``points[:n]``
-    and gate: ``dens[i, m] = N(u_m, v_m; pix_p, pix_cov_p + pos_var I)`` for ``p = points[i]``, zero beyond the
-    gate. ``arg``, ``scale``: work arrays of ``M``."""
+    and gate (float32, as there): ``dens[i, m] = N(u_m, v_m; pix_p, pix_cov_p + pos_var I)`` for
+    ``p = points[i]``, zero beyond the gate. ``arg``, ``scale``: float32 work arrays of ``M``."""
     M = flows.shape[1]
     us, vs = flows[0], flows[1]
     for i in range(n):
         p = points[i]
         a, b, c = pix_cov[p, 0, 0] + pos_var, pix_cov[p, 0, 1], pix_cov[p, 1, 1] + pos_var
         inv_det = 1.0 / (a * c - b * b)
-        ia, ib, ic = c * inv_det, -b * inv_det, a * inv_det
-        norm = np.sqrt(inv_det) / (2.0 * np.pi)
-        u0, v0 = pix[p, 0], pix[p, 1]
+        ia, ib, ic = _F(c * inv_det), _F(-2.0 * b * inv_det), _F(a * inv_det)
+        norm = _F(np.sqrt(inv_det) / (2.0 * np.pi))
+        u0, v0 = _F(pix[p, 0]), _F(pix[p, 1])
         row = dens[i]
         for m in range(M):
             x = us[m] - u0
             y = vs[m] - v0
-            d2 = ia * x * x + 2.0 * ib * x * y + ic * y * y
+            d2 = ia * x * x + ib * x * y + ic * y * y
             arg[m] = d2
-            mantissa, scale[m] = exp_parts(-0.5 * min(max(d2, 0.0), _GATE))   # padding flows (NaN): masked below
+            mantissa, scale[m] = exp32_parts(-_HALF32 * min(max(d2, _ZERO32), _GATE32))  # padding (NaN): below
             row[m] = norm * mantissa
         for m in range(M):
-            row[m] = row[m] * scale[m] if arg[m] <= _GATE else 0.0
+            row[m] = row[m] * scale[m] if arg[m] <= _GATE32 else _ZERO32
 
 
 @numba.njit(cache=True, fastmath=FAST, error_model="numpy")
 def _mixture(dens, points, n, visibility, held, p_in, p_out, iterations, smoothing, weight, total, inv):
     """The visible points' mixture weights ``weight[:n]`` and each flow's inlier density
-    ``total[m] = sum_i w_i N_mi``.
+    ``total[m] = sum_i w_i N_mi`` (float32, as the densities; ``p_in``, ``p_out`` float32).
 
     The weights start from the visibility (normalised) and are adapted by ``iterations`` EM steps to the
     flows, shrunk towards that prior by ``smoothing`` pseudo-flows: points that explain no flow (hidden by an
@@ -141,7 +149,7 @@ def _mixture(dens, points, n, visibility, held, p_in, p_out, iterations, smoothi
     M = len(total)
     for it in range(iterations + 1):
         for m in range(M):
-            total[m] = 0.0
+            total[m] = _ZERO32
         for i in range(n):
             w = weight[i]
             row = dens[i]
@@ -153,7 +161,7 @@ def _mixture(dens, points, n, visibility, held, p_in, p_out, iterations, smoothi
             inv[m] = p_in / (p_in * total[m] + p_out)
         s = 0.0
         for i in range(n):
-            acc = 0.0
+            acc = _ZERO32
             row = dens[i]
             for m in range(M):
                 acc += row[m] * inv[m]
@@ -172,20 +180,24 @@ def _mixture(dens, points, n, visibility, held, p_in, p_out, iterations, smoothi
 
 @numba.njit(cache=True)
 def _work(M, P):
-    """Work arrays of one hypothesis: the densities and their points (``_densities``), the exponential's
+    """float32 work arrays of one hypothesis: the densities and their points (``_densities``), the exponential's
     arguments and powers of two, and the weights, inlier densities and inverses of ``_mixture``."""
-    return (np.empty((P, M)), np.empty(P, dtype=np.int64), np.empty(M), np.empty(M), np.empty(P),
-            np.empty(M), np.empty(M))
+    return (np.empty((P, M), dtype=np.float32), np.empty(P, dtype=np.int64), np.empty(M, dtype=np.float32),
+            np.empty(M, dtype=np.float32), np.empty(P, dtype=np.float32), np.empty(M, dtype=np.float32),
+            np.empty(M, dtype=np.float32))
 
 
 @numba.njit(cache=True)
-def _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, p_in, p_out,
+def _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in, log_out,
                 weight_iterations, smoothing, work):
     """The densities and the adapted mixture of one hypothesis, in ``work``; returns the number of visible
     points."""
     dens, points, arg, scale, weight, total, inv = work
-    n = _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, points, dens, arg, scale)
-    _mixture(dens, points, n, visibility, held, p_in, p_out, weight_iterations, smoothing, weight, total, inv)
+    log_cut = _F(max(log_out - _CUT, EXP32_MIN))
+    n = _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, log_cut, points, dens, arg,
+                   scale)
+    _mixture(dens, points, n, visibility, held, _F(np.exp(log_in)), _F(np.exp(log_out)), weight_iterations,
+             _F(smoothing), weight, total, inv)
     return n
 
 
@@ -196,11 +208,9 @@ def _flow_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibility
     M = flows.shape[1]
     out = np.empty((H, n_flows))
     work = _work(M, P)
-    p_in = np.exp(log_in)
-    p_out = np.exp(log_out)
     for h in range(H):
         n = _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], held[h], pos_var, vel_var,
-                        p_in, p_out, weight_iterations, smoothing, work)
+                        log_in, log_out, weight_iterations, smoothing, work)
         _per_flow(n, work[5], log_in, log_out, out[h])
     return out
 
@@ -215,16 +225,14 @@ def _velocity_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibi
     out = np.empty((H, n_flows))
     work = _work(M, P)
     dens, points, arg, scale, weight, total, _ = work
-    position = np.empty((P, M))
-    total_position = np.empty(M)
+    position = np.empty((P, M), dtype=np.float32)
+    total_position = np.empty(M, dtype=np.float32)
     joint, given = np.empty(n_flows), np.empty(n_flows)
-    p_in = np.exp(log_in)
-    p_out = np.exp(log_out)
     for h in range(H):
         n = _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], held[h], pos_var, vel_var,
-                        p_in, p_out, weight_iterations, smoothing, work)
+                        log_in, log_out, weight_iterations, smoothing, work)
         _position_densities(flows, pix[h], pix_cov[h], pos_var, points, n, position, arg, scale)
-        total_position[:] = 0.0
+        total_position[:] = _ZERO32
         for i in range(n):
             w = weight[i]
             for m in range(M):
@@ -248,11 +256,11 @@ def _per_flow(n, total, log_in, log_out, out):
     p_in, p_out = np.exp(log_in), np.exp(log_out)
     if p_out >= LOG_MIN:
         for m in range(len(out)):
-            out[m] = log_normal(p_in * total[m] + p_out)
+            out[m] = log_normal(p_in * np.float64(total[m]) + p_out)
         return
     for m in range(len(out)):
         if total[m] > 0.0:
-            inlier = log_in + np.log(total[m])
+            inlier = log_in + np.log(np.float64(total[m]))
             hi = max(inlier, log_out)
             out[m] = hi + np.log1p(np.exp(min(inlier, log_out) - hi))
         else:
@@ -269,12 +277,13 @@ def _responsibilities_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visib
     dens, points, _, _, weight, total, _ = work
     p_in = np.exp(log_in)
     p_out = np.exp(log_out)
-    n = _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, p_in, p_out,
+    n = _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in, log_out,
                     weight_iterations, smoothing, work)
     for i in range(n):
         p = points[i]
         for m in range(n_flows):
-            resp[m, p] = p_in * weight[i] * dens[i, m] / (p_in * total[m] + p_out)
+            inlier = p_in * np.float64(weight[i]) * np.float64(dens[i, m])
+            resp[m, p] = inlier / (p_in * np.float64(total[m]) + p_out)
     return resp
 
 
@@ -295,10 +304,10 @@ class FlowModel:
 
 
 def _prepared(flows: np.ndarray, img: ImageDistributions, model: FlowModel, held: np.ndarray | None) -> tuple:
-    """The kernels' arguments: the flows as ``(4, M')`` columns with their number ``M`` (``M'`` rounded up to a
-    multiple of ``_LANES`` with flows that are nowhere, NaN: their densities are zero, and the kernels' loops over
-    flows run without remainders, measured 20% faster at 41 flows), the projected distributions, which points
-    are held, and the scalars (observation noise's position and velocity variances, log
+    """The kernels' arguments: the flows as ``(4, M')`` float32 columns with their number ``M`` (``M'`` rounded up
+    to a multiple of ``_LANES`` with flows that are nowhere, NaN: their densities are zero, and the kernels' loops
+    over flows run without remainders, measured 20% faster at 41 flows), the projected distributions, which
+    points are held, and the scalars (observation noise's position and velocity variances, log
     inlier and outlier terms, EM steps, pseudo-flows)."""
     flows = np.ascontiguousarray(flows, dtype=float).reshape(-1, 4)
     max_flow = 0.25 * max(model.width, model.height) * model.fps if model.max_flow is None else model.max_flow
@@ -311,7 +320,7 @@ def _prepared(flows: np.ndarray, img: ImageDistributions, model: FlowModel, held
     scalars = (float(model.noise_px**2), float(2.0 * (model.noise_px * model.fps) ** 2), log_in, log_out,
                int(model.weight_iterations), float(model.smoothing))
     M = len(flows)
-    columns = np.full((4, -(-M // _LANES) * _LANES), np.nan)
+    columns = np.full((4, -(-M // _LANES) * _LANES), np.nan, dtype=np.float32)
     columns[:, :M] = flows.T
     return (columns, M), dists, held, scalars
 
