@@ -28,6 +28,10 @@ with the same mixture weights ``w_p``: the flows' positions then only say which 
 the evidence is in how they move. The positions of a standing body's flows are explained by its base pose as
 much as by its posture, so a few centimetres of pose error move the positions' evidence between classes by
 more than the classes differ (``docs/engine.md``); the velocities given the positions do not carry that.
+
+The densities and the adapted weights are computed in float32 (twice the vector lanes of doubles): a flow's
+log-likelihood is within about 1e-5 nats of the double computation on the same float32-rounded flows, and
+densities below ``e^-25`` of the outlier density are zero (``_CUT``). Each flow's log is taken in double.
 """
 
 from __future__ import annotations
