@@ -31,20 +31,20 @@ _TAN_PI_8 = 0.41421356237309503           # sqrt(2) - 1
 _ROUNDING = 6755399441055744.0
 
 
-@intrinsic
-def _bits(typingctx, x):
-    """The int64 bit pattern of the double ``x`` (a reinterpretation: no instruction, unlike a conversion)."""
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.int64))
-    return types.int64(types.float64), codegen
+def _reinterpretation(source, target):
+    """A numba intrinsic that reads the bits of a ``source`` number as a ``target`` number of the same width (a
+    reinterpretation: no instruction, unlike a conversion)."""
+    def reinterpret(typingctx, x):
+        def codegen(context, builder, signature, args):
+            return builder.bitcast(args[0], context.get_value_type(target))
+        return target(source), codegen
+    return intrinsic(reinterpret)
 
 
-@intrinsic
-def _double(typingctx, bits):
-    """The double whose bit pattern is the int64 ``bits``."""
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float64))
-    return types.float64(types.int64), codegen
+_bits = _reinterpretation(types.float64, types.int64)        # a double's bit pattern
+_double = _reinterpretation(types.int64, types.float64)      # the double of a bit pattern
+_bits32 = _reinterpretation(types.float32, types.int32)
+_single = _reinterpretation(types.int32, types.float32)
 
 
 @numba.njit(inline="always", fastmath=FAST)
@@ -69,22 +69,6 @@ def exp_parts(x):
     high = ((1 / 40320 + r * (1 / 362880)) + r2 * (1 / 3628800 + r * (1 / 39916800))) + r4 * (
         1 / 479001600 + r * (1 / 6227020800))
     return low + (r4 * r4) * high, _double((_bits(k + _ROUNDING) + 1023) << 52)
-
-
-@intrinsic
-def _bits32(typingctx, x):
-    """The int32 bit pattern of the float32 ``x``."""
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.int32))
-    return types.int32(types.float32), codegen
-
-
-@intrinsic
-def _single(typingctx, bits):
-    """The float32 whose bit pattern is the int32 ``bits``."""
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float32))
-    return types.float32(types.int32), codegen
 
 
 # float32 constants: numba types a Python float literal as a double, which would widen a float32 loop.
