@@ -105,6 +105,41 @@ def test_image_distributions_match_monte_carlo(monte_carlo):
     assert _rel_frobenius(img.flow_cov[0], _cov(flow)).max() < 0.10
 
 
+@pytest.mark.parametrize("P", [12, 300])          # one chunk of the compiled pass, and three
+def test_projection_matches_the_formulas_in_numpy(P):
+    """``to_image`` for random states and poses (``state_index``, several chunks of points, a moving camera)
+    against the projection written out in numpy: ``u = pi(R x + t)``, the image velocity ``J (R xdot - v_c -
+    w_c x X)``, the covariances ``J R S R^T J^T`` with ``J = d pi / dX``, the facing test."""
+    from harness.pinhole import projection_jacobian
+
+    rng = np.random.default_rng(7)
+    S, H = 3, 5
+    A = rng.normal(0, 0.05, (2, S, P, 3, 3))
+    normal = rng.normal(size=(S, P, 3))
+    dist = PointDistributions(rng.normal(0, 0.5, (S, P, 3)), A[0] @ np.swapaxes(A[0], -1, -2),
+                              rng.normal(0, 1.0, (S, P, 3)), A[1] @ np.swapaxes(A[1], -1, -2),
+                              normal / np.linalg.norm(normal, axis=-1, keepdims=True), np.zeros((S, 3)),
+                              np.zeros((S, 3)))
+    intr = Intrinsics.from_fov(45.0, 640, 480)
+    rot = geometry.to_matrix(geometry.normalize(rng.normal(size=(H, 4))))
+    trans = np.column_stack([rng.normal(0, 0.3, (H, 2)), rng.uniform(3.0, 5.0, H)])
+    ego = np.array([0.3, -0.1, 0.2, 0.05, -0.02, 0.1])
+    state_index = rng.integers(0, S, H)
+    img = to_image(intr, rot, trans, dist, camera_motion=ego, state_index=state_index)
+    for h in range(H):
+        s, R = state_index[h], rot[h]
+        X = dist.pos[s] @ R.T + trans[h]
+        J = projection_jacobian(intr, X)
+        np.testing.assert_allclose(img.pix[h], project(intr, X), rtol=1e-12)
+        Xdot = dist.vel[s] @ R.T - ego[:3] - np.cross(ego[3:], X)
+        np.testing.assert_allclose(img.flow[h], np.einsum("pij,pj->pi", J, Xdot), rtol=1e-10, atol=1e-9)
+        JR = J @ R
+        for got, cov in ((img.pix_cov[h], dist.pos_cov[s]), (img.flow_cov[h], dist.vel_cov[s])):
+            np.testing.assert_allclose(got, JR @ cov @ np.swapaxes(JR, -1, -2), rtol=1e-10, atol=1e-9)
+        facing = np.einsum("pi,pi->p", dist.normal[s] @ R.T, X) < 0
+        np.testing.assert_array_equal(img.visibility[h], facing.astype(float))
+
+
 def test_moving_camera_changes_flow_by_ego_motion(monte_carlo):
     body, points, theta, dist, pos, vel = monte_carlo
     intr = Intrinsics.from_fov(45.0, 640, 480)

@@ -89,6 +89,12 @@ class PointDistributions:
                                 self.normal.reshape(S, -1), self.base_linear, self.base_angular], axis=1)
         return centre, np.ascontiguousarray(table)
 
+    @cached_property
+    def rows(self) -> np.ndarray:
+        """The states' points laid out for the projection, ``(S, chunks, _STATE_ROWS * _CHUNK)``
+        (``_state_rows``; computed once per distribution set, read-only)."""
+        return _state_rows(self.pos, self.pos_cov, self.vel, self.vel_cov, self.normal)
+
 
 @numba.njit(cache=True, fastmath={"reassoc", "contract", "nsz"})
 def _weighted_rows(table, weights):
@@ -368,9 +374,8 @@ def _projection_arguments(intr: Intrinsics, rot: np.ndarray, trans: np.ndarray, 
             raise ValueError(f"state_index must give one of {S} states for each of the {len(rot)} poses")
         pose_index = np.arange(H)
     radius, depth = (0.0, 0.0) if occlusion is None else (float(occlusion[0]), float(occlusion[1]))
-    return (rot, trans, pose_index, state_index, *(np.ascontiguousarray(a) for a in (
-        dist.pos, dist.pos_cov, dist.vel, dist.vel_cov, dist.normal)),
-        np.array([intr.fx, intr.fy, intr.cx, intr.cy]), ego, radius, depth)
+    return (rot, trans, pose_index, state_index, dist.rows, dist.pos.shape[1],
+            np.array([intr.fx, intr.fy, intr.cx, intr.cy]), ego, radius, depth)
 
 
 # The footprints' product may be taken in any order (it vectorises); nothing assumes away NaN or infinity.
@@ -381,71 +386,123 @@ _ALL_PAIRS = 256
 
 
 @numba.njit(cache=True)
-def _project_kernel(rot, trans, pose_index, state_index, pos, pos_cov, vel, vel_cov, normal, camera, ego, occ_radius,
-                    occ_depth, pix, pix_cov, flow, flow_cov, visibility):
-    """The loop of ``to_image``: each hypothesis projected (``_project_pose``), then the depth-order visibility
-    of its points."""
-    H, P = pix.shape[0], pos.shape[1]
+def _project_kernel(rot, trans, pose_index, state_index, states, P, camera, ego, occ_radius, occ_depth, pix, pix_cov,
+                    flow, flow_cov, visibility):
+    """The loop of ``to_image``: each hypothesis projected (``_project_pose``, ``_CHUNK`` points at a time, from
+    its state's rows ``states``: ``PointDistributions.rows``), then the depth-order visibility of its points."""
+    H = pix.shape[0]
+    chunks = states.shape[1]
+    rows = np.empty(_ROWS * _CHUNK)
     depth = np.empty(P)
     occlusion = occlusion_work(P)
     for h in range(H):
         s, g = state_index[h], pose_index[h]
-        _project_pose(rot[g], trans[g], pos[s], pos_cov[s], vel[s], vel_cov[s], normal[s], camera, ego, pix[h],
-                     pix_cov[h], flow[h], flow_cov[h], visibility[h], depth)
+        for c in range(chunks):
+            start = c * _CHUNK
+            n = min(_CHUNK, P - start)
+            _project_pose(rot[g], trans[g], states[s, c], n, camera, ego, rows, depth, start)
+            _unpack(rows, n, start, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h])
         if occ_radius > 0.0:
             self_occlusion(pix[h], depth, camera[1] * occ_radius, occ_depth, visibility[h], occlusion)
 
 
-@numba.njit(cache=True, fastmath={"contract"})
-def _project_pose(rot, trans, pos, pos_cov, vel, vel_cov, normal, camera, ego, pix, pix_cov, flow, flow_cov,
-                 visibility, depth):
-    """One hypothesis: X = R x + t, Xdot = R xdot - v_c - w_c x X, u = pi(X), the covariances mapped by
-    J = d(u)/dX R as ``(J Sigma) J^T`` (one fused pass over scalars), the facing test into ``visibility`` and the
-    depths."""
-    P = pos.shape[0]
+# The projection runs on rows of points (one row per quantity) of a fixed length: with the rows' offsets known
+# constants, the compiler sees one array where it saw dozens of streams that might overlap, and runs the pass on
+# vectors of points (it ran one point at a time on the interleaved arrays). 136 points a chunk: the default
+# model's 120 in one, and rows that do not start a multiple of 4 KiB apart (the CPU would take their loads and
+# stores for dependent).
+_CHUNK = 136
+_STATE_ROWS = 21   # a state's points: position, velocity and normal (3 each), the two covariances' distinct entries
+_ROWS = 11         # a hypothesis's points: pixel, image velocity (2 each), the two image covariances' distinct
+#                    entries (3 each), the facing test
+
+
+@numba.njit(cache=True)
+def _state_rows(pos, pos_cov, vel, vel_cov, normal):
+    """The states' points ``(S, P, ...)`` as rows ``(S, chunks, _STATE_ROWS * _CHUNK)``, ``_CHUNK`` points a
+    chunk (the last one's tail unused)."""
+    S, P = pos.shape[0], pos.shape[1]
+    out = np.zeros((S, -(-P // _CHUNK), _STATE_ROWS * _CHUNK))
+    for s in range(S):
+        for p in range(P):
+            c, i = divmod(p, _CHUNK)
+            row = out[s, c]
+            for k in range(3):
+                row[k * _CHUNK + i], row[(3 + k) * _CHUNK + i] = pos[s, p, k], vel[s, p, k]
+                row[(6 + k) * _CHUNK + i] = normal[s, p, k]
+            for k, (a, b) in enumerate(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
+                row[(9 + k) * _CHUNK + i], row[(15 + k) * _CHUNK + i] = pos_cov[s, p, a, b], vel_cov[s, p, a, b]
+    return out
+
+
+@numba.njit(inline="always", fastmath={"contract"})
+def _sandwich(A0, A1, A2, B0, B1, B2, c00, c01, c02, c11, c12, c22):
+    """The distinct entries of ``J C J^T`` for ``J``'s rows ``A``, ``B`` and a symmetric ``C``, as ``(J C) J^T``."""
+    ta0, ta1, ta2 = A0 * c00 + A1 * c01 + A2 * c02, A0 * c01 + A1 * c11 + A2 * c12, A0 * c02 + A1 * c12 + A2 * c22
+    tb0, tb1, tb2 = B0 * c00 + B1 * c01 + B2 * c02, B0 * c01 + B1 * c11 + B2 * c12, B0 * c02 + B1 * c12 + B2 * c22
+    return ta0 * A0 + ta1 * A1 + ta2 * A2, ta0 * B0 + ta1 * B1 + ta2 * B2, tb0 * B0 + tb1 * B1 + tb2 * B2
+
+
+@numba.njit(cache=True, fastmath={"contract"}, error_model="numpy")
+def _project_pose(rot, trans, pts, n, camera, ego, rows, depth, start):
+    """One hypothesis, ``n`` points of a chunk (``pts``: ``_state_rows``' rows): X = R x + t,
+    Xdot = R xdot - v_c - w_c x X, u = pi(X), the covariances mapped by J = d(u)/dX R as ``(J Sigma) J^T`` (one
+    fused pass over scalars), the facing test, into ``rows`` (``_ROWS`` rows of ``_CHUNK``), and the depths into
+    ``depth[start:start + n]``."""
+    C = _CHUNK
     fx, fy, cx, cy = camera[0], camera[1], camera[2], camera[3]
     e0, e1, e2, w0, w1, w2 = ego[0], ego[1], ego[2], ego[3], ego[4], ego[5]
     r00, r01, r02 = rot[0, 0], rot[0, 1], rot[0, 2]
     r10, r11, r12 = rot[1, 0], rot[1, 1], rot[1, 2]
     r20, r21, r22 = rot[2, 0], rot[2, 1], rot[2, 2]
     t0, t1, t2 = trans[0], trans[1], trans[2]
-    for p in range(P):
-        x0, x1, x2 = pos[p, 0], pos[p, 1], pos[p, 2]
+    for p in range(n):
+        x0, x1, x2 = pts[p], pts[C + p], pts[2 * C + p]
         X0 = t0 + r00 * x0 + r01 * x1 + r02 * x2
         X1 = t1 + r10 * x0 + r11 * x1 + r12 * x2
         X2 = t2 + r20 * x0 + r21 * x1 + r22 * x2
-        v0, v1, v2 = vel[p, 0], vel[p, 1], vel[p, 2]
+        v0, v1, v2 = pts[3 * C + p], pts[4 * C + p], pts[5 * C + p]
         Xd0 = r00 * v0 + r01 * v1 + r02 * v2 - e0 - (w1 * X2 - w2 * X1)
         Xd1 = r10 * v0 + r11 * v1 + r12 * v2 - e1 - (w2 * X0 - w0 * X2)
         Xd2 = r20 * v0 + r21 * v1 + r22 * v2 - e2 - (w0 * X1 - w1 * X0)
-        n0, n1, n2 = normal[p, 0], normal[p, 1], normal[p, 2]
+        n0, n1, n2 = pts[6 * C + p], pts[7 * C + p], pts[8 * C + p]
         n_dot_x = ((r00 * n0 + r01 * n1 + r02 * n2) * X0 + (r10 * n0 + r11 * n1 + r12 * n2) * X1
                    + (r20 * n0 + r21 * n1 + r22 * n2) * X2)
         z = X2
-        depth[p] = z
-        visibility[p] = 1.0 if (n_dot_x < 0.0) and (z > MIN_DEPTH) else 0.0
-        if z <= MIN_DEPTH:
-            z = 1.0
+        depth[start + p] = z
+        rows[10 * C + p] = 1.0 if (n_dot_x < 0.0) & (z > MIN_DEPTH) else 0.0
+        z = z if z > MIN_DEPTH else 1.0
         iz = 1.0 / z
-        pix[p, 0] = fx * X0 * iz + cx
-        pix[p, 1] = fy * X1 * iz + cy
+        rows[p] = fx * X0 * iz + cx
+        rows[C + p] = fy * X1 * iz + cy
         # d(u, v)/dX = [[fx/z, 0, -fx X/z^2], [0, fy/z, -fy Y/z^2]]; its rows times R are (A0, A1, A2), (B0, B1, B2).
         a0, a2 = fx * iz, -fx * X0 * iz * iz
         b1, b2 = fy * iz, -fy * X1 * iz * iz
         A0, A1, A2 = a0 * r00 + a2 * r20, a0 * r01 + a2 * r21, a0 * r02 + a2 * r22
         B0, B1, B2 = b1 * r10 + b2 * r20, b1 * r11 + b2 * r21, b1 * r12 + b2 * r22
-        flow[p, 0] = a0 * Xd0 + a2 * Xd2
-        flow[p, 1] = b1 * Xd1 + b2 * Xd2
-        for which in range(2):
-            cov = pos_cov if which == 0 else vel_cov
-            c00, c01, c02 = cov[p, 0, 0], cov[p, 0, 1], cov[p, 0, 2]
-            c11, c12, c22 = cov[p, 1, 1], cov[p, 1, 2], cov[p, 2, 2]
-            ta0, ta1, ta2 = A0 * c00 + A1 * c01 + A2 * c02, A0 * c01 + A1 * c11 + A2 * c12, A0 * c02 + A1 * c12 + A2 * c22
-            tb0, tb1, tb2 = B0 * c00 + B1 * c01 + B2 * c02, B0 * c01 + B1 * c11 + B2 * c12, B0 * c02 + B1 * c12 + B2 * c22
-            out = pix_cov if which == 0 else flow_cov
-            out[p, 0, 0] = ta0 * A0 + ta1 * A1 + ta2 * A2
-            out[p, 0, 1] = out[p, 1, 0] = ta0 * B0 + ta1 * B1 + ta2 * B2
-            out[p, 1, 1] = tb0 * B0 + tb1 * B1 + tb2 * B2
+        rows[2 * C + p] = a0 * Xd0 + a2 * Xd2
+        rows[3 * C + p] = b1 * Xd1 + b2 * Xd2
+        rows[4 * C + p], rows[5 * C + p], rows[6 * C + p] = _sandwich(
+            A0, A1, A2, B0, B1, B2, pts[9 * C + p], pts[10 * C + p], pts[11 * C + p], pts[12 * C + p],
+            pts[13 * C + p], pts[14 * C + p])
+        rows[7 * C + p], rows[8 * C + p], rows[9 * C + p] = _sandwich(
+            A0, A1, A2, B0, B1, B2, pts[15 * C + p], pts[16 * C + p], pts[17 * C + p], pts[18 * C + p],
+            pts[19 * C + p], pts[20 * C + p])
+
+
+@numba.njit(cache=True)
+def _unpack(rows, n, start, pix, pix_cov, flow, flow_cov, visibility):
+    """``_project_pose``'s rows of ``n`` points into the interleaved arrays of ``ImageDistributions`` (one
+    hypothesis), from point ``start``."""
+    C = _CHUNK
+    for i in range(n):
+        p = start + i
+        pix[p, 0], pix[p, 1], flow[p, 0], flow[p, 1] = rows[i], rows[C + i], rows[2 * C + i], rows[3 * C + i]
+        pix_cov[p, 0, 0], pix_cov[p, 1, 1] = rows[4 * C + i], rows[6 * C + i]
+        pix_cov[p, 0, 1] = pix_cov[p, 1, 0] = rows[5 * C + i]
+        flow_cov[p, 0, 0], flow_cov[p, 1, 1] = rows[7 * C + i], rows[9 * C + i]
+        flow_cov[p, 0, 1] = flow_cov[p, 1, 0] = rows[8 * C + i]
+        visibility[p] = rows[10 * C + i]
 
 
 @numba.njit(cache=True)
