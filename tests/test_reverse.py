@@ -82,3 +82,29 @@ def test_the_backward_starts_are_each_primitives_best_final_cloud_or_the_leaders
     assert starts[2][2] is final[2].cloud                                       # primitive 2's best, not its first
     assert [(c, cloud) for c, _, cloud in settled_starts(final, 4, live_only=True)] == [(0, final[1].cloud),
                                                                                         (2, final[2].cloud)]
+
+
+def test_backward_starts_from_one_cloud_each_hold_their_own_and_are_weighed_once(body, trained):
+    """Primitives without a live track start from the same leader's cloud: each backward track gets its own copy,
+    so the first frame weighs every track once, by its own primitive (before, a shared cloud was weighed by every
+    holder's primitive in turn, and all holders kept the product)."""
+    from types import SimpleNamespace
+
+    from harness import geometry
+    from harness.engine.backward import SettledStarts
+    from harness.engine.logsum import logsumexp
+    from harness.engine.particle_filter import ParticleCloud
+
+    rng = np.random.default_rng(0)
+    prior = np.log(np.full(4, 0.25))
+    shared = ParticleCloud(rng.normal(size=(4, 3)), geometry.normalize(rng.normal(size=(4, 4))), prior.copy())
+    scorer = Tracker(trained, body, TrackerConfig(model_points=40)).scorer
+    tracks = SettledStarts(scorer, rng, [(0, "end:lead", shared), (1, "end:leader", shared)]).start(
+        SimpleNamespace(gravity=None))
+    assert len({id(t.cloud) for t in tracks}) == len(tracks) >= 2
+    lls = [rng.normal(size=4) for _ in tracks]
+    for track, ll in zip(tracks, lls):
+        track.cloud.reweight(ll)
+    for track, ll in zip(tracks, lls):
+        np.testing.assert_allclose(track.cloud.log_weights, prior + ll - logsumexp(prior + ll), rtol=1e-12)
+    np.testing.assert_array_equal(shared.log_weights, prior)

@@ -48,7 +48,9 @@ class SettledStarts(ParticleTracks):
         cfg = self.scorer.config
         tracks = []
         for primitive, origin, cloud in self.starts:
-            variants = [(origin, cloud)]
+            # Every start its own copy: the primitives without a live track start from the same leader's cloud,
+            # and a cloud that several tracks held was weighed once per holder, by each one's primitive.
+            variants = [(origin, ParticleCloud(cloud.positions.copy(), cloud.quats.copy(), cloud.log_weights.copy()))]
             if cfg.twin_track:
                 variants.append((origin + "~twin", ParticleCloud(cloud.positions.copy(), twin(cloud.quats, frame.gravity),
                                                                  cloud.log_weights.copy())))
