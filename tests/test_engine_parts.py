@@ -15,8 +15,8 @@ from harness.engine import MotionDatabase, Recognizer, motion_features, recogniz
 from harness.engine.likelihood import (FlowModel, flow_log_likelihoods, responsibilities, tempered,
                                        velocity_log_likelihoods)
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
-                                            motion_mean, pose_mixture_log_density, propose, propose_many, settled,
-                                            systematic_resample, upright_orientations)
+                                            motion_mean, pose_mixture_log_density, propose, propose_many,
+                                            reweight_many, settled, systematic_resample, upright_orientations)
 from harness.engine.recovery import Prior, Recovery, refine_pose
 from harness.engine.transform import ImageDistributions, patch_std
 from harness.engine.vector_math import EXP32_MIN, LOG_MIN, atan_ratio, exp32_parts, exp_into, log_normal
@@ -294,6 +294,54 @@ def test_systematic_resampling_is_unbiased_and_low_variance(rng):
     np.testing.assert_allclose(counts / 400, 50 * w, atol=0.06)
     assert effective_sample_size(np.ones(10)) == pytest.approx(10.0)
     assert effective_sample_size(np.eye(10)[0] + 1e-300) == pytest.approx(1.0)
+
+
+def test_resampling_several_clouds_at_once_is_each_clouds_own(rng):
+    """The compiled systematic resampling over segments: each cloud's indices are numpy's ``searchsorted`` of its
+    cumulative shares (the last taken as one) at its own offset's pointers, and ``systematic_resample`` draws its
+    offset from the generator as before."""
+    from harness.engine.particle_filter import _resampled
+
+    sizes, n = [7, 1, 30, 12], 9
+    weights = rng.random(sum(sizes)) ** 4
+    weights[7 + 1 + 3] = 0.0                       # a particle without weight is never drawn
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    offsets = rng.random(len(sizes))
+    got = np.empty(len(sizes) * n, dtype=np.int64)
+    _resampled(weights, starts, offsets, n, got)
+    for j, (a, b) in enumerate(zip(starts[:-1], starts[1:])):
+        cum = np.cumsum(weights[a:b] / weights[a:b].sum())
+        cum[-1] = 1.0
+        expected = a + np.searchsorted(cum, (offsets[j] + np.arange(n)) / n, side="right")
+        np.testing.assert_array_equal(got[j * n:(j + 1) * n], expected)
+    assert 7 + 1 + 3 not in got
+    one, two = np.random.default_rng(4), np.random.default_rng(4)
+    w = weights[:7] / weights[:7].sum()
+    cum = np.cumsum(w)
+    cum[-1] = 1.0
+    np.testing.assert_array_equal(systematic_resample(w, one, 5),
+                                  np.searchsorted(cum, (two.random() + np.arange(5)) / 5, side="right"))
+
+
+def test_reweighting_several_clouds_at_once(rng):
+    """``reweight_many``: each cloud's weights times its likelihoods, normalised, and the log of the weighted mean
+    likelihood, as numpy computes them; a likelihood that is not finite weighs a particle out; one cloud given
+    twice is refused (it would be weighed once, by the second)."""
+    clouds = [ParticleCloud(np.zeros((k, 3)), np.tile([1.0, 0, 0, 0], (k, 1)), np.log(rng.dirichlet(np.ones(k))))
+              for k in (5, 1, 12)]
+    before = [c.log_weights.copy() for c in clouds]
+    lls = [rng.normal(-40, 5, len(c)) for c in clouds]
+    lls[2][3], lls[2][7] = -np.inf, np.nan
+    norms = reweight_many(clouds, lls)
+    for cloud, lw, ll, norm in zip(clouds, before, lls, norms):
+        joint = lw + np.where(np.isfinite(ll), ll, -1e300)
+        expected = np.log(np.sum(np.exp(joint - joint.max()))) + joint.max()
+        assert norm == pytest.approx(expected, rel=1e-14)
+        np.testing.assert_allclose(cloud.log_weights, joint - expected, rtol=1e-13)
+        assert np.exp(cloud.log_weights).sum() == pytest.approx(1.0, rel=1e-13)
+    assert np.exp(clouds[2].log_weights[[3, 7]]).tolist() == [0.0, 0.0]
+    with pytest.raises(EngineError, match="twice"):
+        reweight_many([clouds[0], clouds[0]], [lls[0], lls[0]])
 
 
 def test_particle_cloud_estimate_and_motion_model(rng):

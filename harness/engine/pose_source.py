@@ -26,7 +26,8 @@ from harness.body.model import mirror_angles
 from harness.engine.frame import Frame
 from harness.engine.logsum import logsumexp
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
-                                            initial_cloud, level_world, propose_many, settled, systematic_resample)
+                                            initial_cloud, level_world, propose_many, reweight_many, settled,
+                                            systematic_resample)
 from harness.engine.recovery import Recovery
 from harness.engine.scoring import Scorer
 from harness.engine.track import (Alternative, Snapshot, Track, alternatives, new_recognizer, prune_and_merge, turned,
@@ -139,10 +140,10 @@ class ParticleTracks:
         self._drawn_at = frame.index
         C = len(per_class)
         n_each = self.share(C * cfg.n_tracks)
+        owns = [ParticleCloud(wide.positions, wide.quats, wide.log_weights.copy()) for _ in range(C)]
+        reweight_many(owns, per_class)
         tracks = []
-        for c in range(C):
-            own = ParticleCloud(wide.positions, wide.quats, wide.log_weights.copy())
-            own.reweight(per_class[c])
+        for c, own in enumerate(owns):
             tracks += self.spawn(own, frame.gravity, primitive=c, n_each=n_each)
         return tracks
 
@@ -275,8 +276,7 @@ class ParticleTracks:
         # The tracks per primitive ``start`` drew from this frame's weighing hold it already: weighed again, the
         # first frame would count twice (docs/engine.md, "Spawning").
         if frame.has_flows and frame.index != self._drawn_at:
-            for track, ll in zip(tracks, self.log_likelihoods(frame, tracks)):
-                track.reweight(ll)
+            reweight_many([t.cloud for t in tracks], self.log_likelihoods(frame, tracks))
         positions, quats, spreads = settled([t.cloud for t in tracks])
         for track, pos, quat, spread in zip(tracks, positions, quats, spreads):
             track.settle(pos, quat, spread, self.scorer.config.refine_position_std)

@@ -232,10 +232,6 @@ class Track:
                              camera_motion=frame.camera_motion, guide=guide, guide_fraction=config.guide_fraction,
                              guide_std=guide_std)
 
-    def reweight(self, log_likelihood: np.ndarray) -> None:
-        """Multiply the particles' weights by likelihoods ``(N,)`` (log)."""
-        self.cloud.reweight(log_likelihood)
-
     def settle(self, position: np.ndarray, quat: np.ndarray, spread: np.ndarray, min_std: float) -> None:
         """This frame's pose: the cloud's estimate (``particle_filter.settled``), with its spread (at least
         ``min_std``) as recovery's room."""
