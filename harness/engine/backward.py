@@ -38,7 +38,8 @@ class SettledStarts(ParticleTracks):
     """The backward pass's pose source: the causal pass's final clouds, one set per primitive (module
     docstring), instead of a first frame's search; every other stage as the causal ``ParticleTracks``. Unlike the
     causal spawn, the starts are weighed by the first frame (the causal pass's last, whose weights the clouds
-    carry): unweighed, the smoothed heading was 4.3 +- 2.8 deg worse on 240 development runs (docs/engine.md)."""
+    carry): unweighed, the smoothed heading was 4.3 +- 2.8 deg worse on 240 development runs (docs/engine.md; measured
+    while the starts that shared the leader's cloud were weighed once per holder, fixed 2026-12-06)."""
 
     def __init__(self, scorer, rng, starts: list[tuple[int, str, ParticleCloud]]):
         super().__init__(scorer, rng)
