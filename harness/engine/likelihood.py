@@ -192,16 +192,22 @@ def _work(M, P):
 
 
 @numba.njit(cache=True)
-def _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in, log_out,
-                weight_iterations, smoothing, work):
-    """The densities and the adapted mixture of one hypothesis, in ``work``; returns the number of visible
-    points."""
+def _terms(log_in, log_out, smoothing):
+    """The float32 scalars every hypothesis of a kernel call shares: the densities' cut (``_CUT``), the inlier
+    and outlier shares and the pseudo-flows of ``_mixture``."""
+    return _F(max(log_out - _CUT, EXP32_MIN)), _F(np.exp(log_in)), _F(np.exp(log_out)), _F(smoothing)
+
+
+@numba.njit(cache=True)
+def _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, terms, weight_iterations,
+                work):
+    """The densities and the adapted mixture of one hypothesis, in ``work`` (``terms``: ``_terms``); returns the
+    number of visible points."""
     dens, points, arg, scale, weight, total, inv = work
-    log_cut = _F(max(log_out - _CUT, EXP32_MIN))
+    log_cut, p_in, p_out, smoothing = terms
     n = _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, log_cut, points, dens, arg,
                    scale)
-    _mixture(dens, points, n, visibility, held, _F(np.exp(log_in)), _F(np.exp(log_out)), weight_iterations,
-             _F(smoothing), weight, total, inv)
+    _mixture(dens, points, n, visibility, held, p_in, p_out, weight_iterations, smoothing, weight, total, inv)
     return n
 
 
@@ -212,9 +218,10 @@ def _flow_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibility
     M = flows.shape[1]
     out = np.empty((H, n_flows))
     work = _work(M, P)
+    terms = _terms(log_in, log_out, smoothing)
     for h in range(H):
         n = _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], held[h], pos_var, vel_var,
-                        log_in, log_out, weight_iterations, smoothing, work)
+                        terms, weight_iterations, work)
         _per_flow(n, work[5], log_in, log_out, out[h])
     return out
 
@@ -232,9 +239,10 @@ def _velocity_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibi
     position = np.empty((P, M), dtype=np.float32)
     total_position = np.empty(M, dtype=np.float32)
     joint, given = np.empty(n_flows), np.empty(n_flows)
+    terms = _terms(log_in, log_out, smoothing)
     for h in range(H):
         n = _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], held[h], pos_var, vel_var,
-                        log_in, log_out, weight_iterations, smoothing, work)
+                        terms, weight_iterations, work)
         _position_densities(flows, pix[h], pix_cov[h], pos_var, points, n, position, arg, scale)
         total_position[:] = _ZERO32
         for i in range(n):
@@ -281,8 +289,8 @@ def _responsibilities_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visib
     dens, points, _, _, weight, total, _ = work
     p_in = np.exp(log_in)
     p_out = np.exp(log_out)
-    n = _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in, log_out,
-                    weight_iterations, smoothing, work)
+    n = _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var,
+                    _terms(log_in, log_out, smoothing), weight_iterations, work)
     for i in range(n):
         p = points[i]
         for m in range(n_flows):
