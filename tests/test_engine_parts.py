@@ -606,6 +606,26 @@ def test_robust_emissions_against_per_feature_densities(database):
         db.log_emissions(f, measured=measured[:50])
 
 
+def test_robust_emissions_kernel_against_numpy_over_every_state(database):
+    """The compiled sum (``_robust_log_densities``: its own exponential and logarithm) equals numpy's
+    ``logaddexp`` of the Gaussian and the outlier term, summed over the measured features, for every frame, class
+    and state, near the states and far from them (where the outlier term takes over)."""
+    db = database
+    rng = np.random.default_rng(5)
+    f = db.means_[2, 1] + rng.normal(0, 1, (7, 106)) * np.sqrt(db.covars_[2, 1]) * np.array([[1], [3], [10]] * 2
+                                                                                           + [[100]])
+    for measured in (None, rng.random(106) < 0.6):
+        keep = np.ones(106, dtype=bool) if measured is None else measured
+        var = db.covars_[None][..., keep]
+        d = f[:, None, None, keep] - db.means_[None][..., keep]
+        gauss = -0.5 * (d * d / var + np.log(2 * np.pi * var))
+        for eps in (0.05, 0.3):
+            want = np.logaddexp(np.log1p(-eps) + gauss, np.log(eps) - np.log(db.feature_span()[keep])).sum(axis=-1)
+            # A sum of ~100 terms, each rounded: about 100 unit round-offs of the sum, within 1e-13 with margin.
+            np.testing.assert_allclose(db.log_emissions(f, outlier=eps, measured=measured), want, rtol=1e-13,
+                                       atol=1e-11)
+
+
 def test_one_far_feature_does_not_hand_the_answer_to_the_broad_class(database):
     """The catch-all the outlier share removes: a performance that matches class A's state in every feature
     but one, held 40 sd away, goes to a class B whose Gaussians are four times broader under the plain
