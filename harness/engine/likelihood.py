@@ -256,7 +256,7 @@ def _velocity_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibi
     return out
 
 
-@numba.njit(cache=True, fastmath=FAST)
+@numba.njit(cache=True, fastmath=FAST, error_model="numpy")
 def _per_flow(n, total, log_in, log_out, out):
     """``out[m] = log((1 - eps) total[m] + eps U)`` from each flow's inlier density ``total`` (``_mixture``) over
     ``n`` visible points; every flow an outlier when none is visible. The mixture is at least the outlier term,
