@@ -19,10 +19,10 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.special import log_softmax, logsumexp, softmax
 
 from harness.engine.confidence import calibrated
 from harness.engine.estimate import Estimate, smooth_trajectory
+from harness.engine.logsum import logsumexp
 from harness.errors import EngineError
 
 
@@ -54,7 +54,7 @@ class FrameRecord:
     def decision(self) -> tuple[np.ndarray, TrackRecord]:
         """The evidence-weighted mixture of the tracks' joint posteriors ``(C, K)`` and the leading track."""
         evidence = np.array([t.log_evidence for t in self.tracks])
-        share = softmax(evidence)
+        share = np.exp(evidence - logsumexp(evidence))
         joint = np.einsum("j,jck->ck", share, np.array([t.joint_posterior for t in self.tracks]))
         joint /= joint.sum()
         return joint, self.tracks[int(np.argmax(evidence))]
@@ -68,7 +68,7 @@ def mixed_log_class_posterior(tracks: tuple[TrackRecord, ...], log_weights: np.n
     """``log`` of the tracks' class posteriors mixed with weights ``softmax(log_weights)``, ``(C,)``, summed in
     log space: with a track per primitive the classes' evidence differs by hundreds of nats, which
     probabilities would round to 0 and 1."""
-    log_share = log_softmax(log_weights)
+    log_share = log_weights - logsumexp(log_weights)
     with np.errstate(divide="ignore"):
         log_class = np.log(np.array([t.joint_posterior.sum(axis=1) for t in tracks]))
     return logsumexp(log_share[:, None] + log_class, axis=0)
