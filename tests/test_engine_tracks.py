@@ -51,6 +51,21 @@ def test_the_twin_is_the_depth_reflection_of_the_mirrored_body(body, rng):
     np.testing.assert_allclose(geometry.rotate(turned(quat, 1.1), np.array([0.0, 0, 1])), up, atol=1e-12)
 
 
+def test_the_twin_quaternion_is_the_reflected_mirrored_rotation_matrix(rng):
+    """``twin``'s quaternion product equals the matrices it stands for, ``S R S_b`` without gravity and
+    ``W^T diag(-1, 1, 1) W R S_b`` with it (the quaternion of their product by ``geometry.from_matrix``), with
+    ``w >= 0`` as ``from_matrix`` gives."""
+    quat = geometry.normalize(rng.normal(size=(50, 4)))
+    mirror = np.diag([1.0, -1.0, 1.0])
+    gravity = geometry.normalize(np.array([0.1, 0.9, 0.3]))
+    world = level_world(gravity)
+    for g, reflection in ((None, np.diag([1.0, 1.0, -1.0])), (gravity, world.T @ np.diag([-1.0, 1.0, 1.0]) @ world)):
+        want = geometry.from_matrix(reflection @ geometry.to_matrix(quat) @ mirror)
+        got = twin(quat, g)
+        assert np.all(got[:, 0] >= 0)
+        np.testing.assert_allclose(got, want, atol=1e-12)
+
+
 @pytest.mark.parametrize("velocities", [True, False])
 def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trained, velocities):
     """Along a given pose path, a track's evidence is log p(y_1:T) of the HMMs with the classes and states

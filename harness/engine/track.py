@@ -33,9 +33,11 @@ from harness.engine.transform import PointDistributions
 
 # Depth reflection in the camera frame (through the plane z = const) and the body's left/right mirror in the
 # base frame (y -> -y). Their composition maps a pose to its twin: X = R x + t and S (X - t) + t = (S R S_b)
-# (S_b x) + t, where S_b x is the mirrored body.
-_DEPTH_REFLECTION = np.diag([1.0, 1.0, -1.0])
-_BODY_MIRROR = np.diag([1.0, -1.0, 1.0])
+# (S_b x) + t, where S_b x is the mirrored body. A reflection through the plane normal to a unit ``a`` is minus
+# the half turn about ``a``, so S R S_b is the rotation H_a R H_y (the two signs cancel): as quaternions,
+# (0, a) q (0, e_y), a signed permutation and sum of q's components, exact (``twin``).
+_DEPTH_NORMAL = np.array([0.0, 0.0, 1.0])
+_HALF_TURN_Y = np.array([0.0, 0.0, 1.0, 0.0])
 
 
 def turned(quats: np.ndarray, angle: float) -> np.ndarray:
@@ -52,11 +54,9 @@ def twin(quats: np.ndarray, gravity: np.ndarray | None = None) -> np.ndarray:
     horizontal viewing direction, ``W^T diag(-1, 1, 1) W R S_b`` with ``W`` the level world of
     ``particle_filter.level_world``.
     """
-    rot = geometry.to_matrix(quats)
-    if gravity is None:
-        return geometry.from_matrix(_DEPTH_REFLECTION @ rot @ _BODY_MIRROR)
-    world = level_world(gravity)
-    return geometry.from_matrix(world.T @ np.diag([-1.0, 1.0, 1.0]) @ world @ rot @ _BODY_MIRROR)
+    normal = _DEPTH_NORMAL if gravity is None else level_world(gravity)[0]     # the reflection's plane normal
+    q = geometry.multiply(geometry.multiply(np.concatenate([[0.0], normal]), quats), _HALF_TURN_Y)
+    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
 
 
 @dataclass(frozen=True)
