@@ -235,3 +235,26 @@ def test_heading_error_curve_reads_the_yaw_error_at_ten_instants():
     curve = metrics.heading_error_curve(_facing(30.0 + err, cam), _facing(np.full(t, 30.0), cam), cam, 10)
     frames = np.round(np.linspace(0, t - 1, 10)).astype(int)
     np.testing.assert_allclose(curve, err[frames], atol=1e-6)
+
+
+def test_joint_errors_from_joints_computed_once_are_the_single_metrics(body, rng):
+    """``joint_errors_mm`` (the evaluation's columns from one forward kinematics of each configuration) gives
+    the numbers of the single metric functions, each of which runs its own; a scaled subject as the truth."""
+    subject = body.scaled(np.full(body.model.nbody, 1.07))
+    true = body.qpos(body.random_angles(rng, 4, scale=0.4), base_pos=np.array([[0.2, -0.1, 4.0]] * 4),
+                     base_quat=np.array([[0.9, 0.1, 0.4, 0.1]] * 4) / np.linalg.norm([0.9, 0.1, 0.4, 0.1]))
+    est = true.copy()
+    est[:, 7:] += rng.normal(0, 0.2, est[:, 7:].shape)
+    est[:, :3] += rng.normal(0, 0.1, (4, 3))
+    h36m = metrics.h36m_joints(body)
+    got = metrics.joint_errors_mm(body_origins(body, est, frame="world"), body_origins(subject, true, frame="world"),
+                                  body_origins(body, est, frame="base"), body_origins(subject, true, frame="base"),
+                                  h36m)
+    want = {"mpjpe_pose_mm": metrics.mpjpe_pose_mm(body, est, true, subject),
+            "mpjpe_cam_mm": metrics.mpjpe_camera_mm(body, est, true, true_body=subject),
+            "mpjpe_cam17_mm": metrics.mpjpe_camera_mm(body, est, true, h36m, true_body=subject),
+            "pa_mpjpe_mm": metrics.pa_mpjpe_mm(body, est, true, true_body=subject),
+            "pa_mpjpe17_mm": metrics.pa_mpjpe_mm(body, est, true, h36m, true_body=subject),
+            "mpjpe_abs_mm": metrics.mpjpe_absolute_mm(body, est, true, subject)}
+    assert got == want
+    assert all(v > 1.0 for v in got.values())

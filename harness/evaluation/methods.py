@@ -36,7 +36,7 @@ from functools import cached_property
 
 import numpy as np
 
-from harness.body import BodyModel, SurfacePoints
+from harness.body import BodyModel, SurfacePoints, body_origins
 from harness.engine import Estimate, MotionDatabase, Tracker, TrackerConfig, motion_features, recognize_features
 from harness.engine.features import measured_features
 from harness.engine.recovery import fit_without_database
@@ -221,15 +221,13 @@ def recovery_scores(inputs: RunInputs, qpos_est: np.ndarray) -> dict:
     uv = np.concatenate([f[:, :2] for f in obs.flows])
     keep = marker >= 0
     h36m = metrics.h36m_joints(body)
-    out = {"angle_rms_deg": metrics.angle_rms_deg(qpos_est[:, 7:], truth.qpos[:, 7:]),
-           "mpjpe_pose_mm": metrics.mpjpe_pose_mm(body, qpos_est, true_cam, subject),
-           "mpjpe_cam_mm": metrics.mpjpe_camera_mm(body, qpos_est, true_cam, true_body=subject),
-           "mpjpe_cam17_mm": metrics.mpjpe_camera_mm(body, qpos_est, true_cam, h36m, true_body=subject),
-           "pa_mpjpe_mm": metrics.pa_mpjpe_mm(body, qpos_est, true_cam, true_body=subject),
-           "pa_mpjpe17_mm": metrics.pa_mpjpe_mm(body, qpos_est, true_cam, h36m, true_body=subject),
-           "mpjpe_abs_mm": metrics.mpjpe_absolute_mm(body, qpos_est, true_cam, subject),
-           "reproj_px": metrics.reprojection_px(body, qpos_est, nominal_markers(truth.markers, subject),
-                                                obs.intrinsics, frame[keep], marker[keep], uv[keep])}
+    out = {"angle_rms_deg": metrics.angle_rms_deg(qpos_est[:, 7:], truth.qpos[:, 7:])}
+    out |= metrics.joint_errors_mm(body_origins(body, qpos_est, frame="world"),
+                                   body_origins(subject, true_cam, frame="world"),
+                                   body_origins(body, qpos_est, frame="base"),
+                                   body_origins(subject, true_cam, frame="base"), h36m)
+    out["reproj_px"] = metrics.reprojection_px(body, qpos_est, nominal_markers(truth.markers, subject),
+                                               obs.intrinsics, frame[keep], marker[keep], uv[keep])
     out |= metrics.base_errors(qpos_est[:, :3], qpos_est[:, 3:7], truth.base_pos_cam, truth.base_quat_cam)
     out |= metrics.heading_tilt_errors(qpos_est[:, 3:7], truth.base_quat_cam, truth.camera_rot)
     out |= metrics.heading_twin_error(qpos_est[:, 3:7], truth.base_quat_cam, truth.camera_rot)

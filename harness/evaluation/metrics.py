@@ -83,9 +83,8 @@ def mpjpe_pose_mm(body: BodyModel, est_qpos: np.ndarray, true_qpos: np.ndarray,
     body estimated facing backwards with the right angles scores 0. The root (always at the origin) is left
     out of the mean.
     """
-    est = body_origins(body, est_qpos, frame="base")[..., 1:, :]
-    true = body_origins(true_body or body, true_qpos, frame="base")[..., 1:, :]
-    return float(1000.0 * np.mean(np.linalg.norm(est - true, axis=-1)))
+    return _mpjpe_pose(body_origins(body, est_qpos, frame="base"),
+                       body_origins(true_body or body, true_qpos, frame="base"))
 
 
 def camera_qpos(body: BodyModel, base_pos_cam: np.ndarray, base_quat_cam: np.ndarray,
@@ -99,9 +98,8 @@ def mpjpe_absolute_mm(body: BodyModel, est_qpos_cam: np.ndarray, true_qpos_cam: 
                       true_body: BodyModel | None = None) -> float:
     """Absolute mean per-joint position error in the camera frame, millimetres, every joint centre (root
     included); both configurations carry their camera-frame base pose (see ``camera_qpos``)."""
-    est = body_origins(body, est_qpos_cam, frame="world")
-    true = body_origins(true_body or body, true_qpos_cam, frame="world")
-    return float(1000.0 * np.mean(np.linalg.norm(est - true, axis=-1)))
+    return _mean_distance_mm(body_origins(body, est_qpos_cam, frame="world"),
+                             body_origins(true_body or body, true_qpos_cam, frame="world"))
 
 
 def mpjpe_camera_mm(body: BodyModel, est_qpos_cam: np.ndarray, true_qpos_cam: np.ndarray,
@@ -112,11 +110,8 @@ def mpjpe_camera_mm(body: BodyModel, est_qpos_cam: np.ndarray, true_qpos_cam: np
     ``joints``: indices into the joint axis (default: every non-root joint, 24). With ``h36m_joints`` the
     mean runs over the 17 joints, the root included at zero error, as Human3.6M's evaluation code does.
     """
-    est = body_origins(body, est_qpos_cam, frame="world")
-    true = body_origins(true_body or body, true_qpos_cam, frame="world")
-    est, true = est - est[..., :1, :], true - true[..., :1, :]
-    sel = np.arange(1, est.shape[-2]) if joints is None else np.asarray(joints)
-    return float(1000.0 * np.mean(np.linalg.norm(est[..., sel, :] - true[..., sel, :], axis=-1)))
+    return _mpjpe_camera(body_origins(body, est_qpos_cam, frame="world"),
+                         body_origins(true_body or body, true_qpos_cam, frame="world"), joints)
 
 
 def procrustes_align(est: np.ndarray, true: np.ndarray) -> np.ndarray:
@@ -139,12 +134,44 @@ def pa_mpjpe_mm(body: BodyModel, est_qpos_cam: np.ndarray, true_qpos_cam: np.nda
     """Human3.6M protocol 2, millimetres: mean joint error after a per-frame similarity Procrustes alignment
     of the estimated joints onto the true ones, over ``joints`` (default: all 25 joint centres, root
     included; ``h36m_joints`` for the 17)."""
-    est = body_origins(body, est_qpos_cam, frame="world")
-    true = body_origins(true_body or body, true_qpos_cam, frame="world")
+    return _pa_mpjpe(body_origins(body, est_qpos_cam, frame="world"),
+                     body_origins(true_body or body, true_qpos_cam, frame="world"), joints)
+
+
+def joint_errors_mm(est_world: np.ndarray, true_world: np.ndarray, est_base: np.ndarray, true_base: np.ndarray,
+                    h36m: np.ndarray) -> dict:
+    """The joint-position columns from joint centres computed once (``body_origins`` of the estimate and of
+    the truth, camera frame ``world`` and base frame ``base``, ``(T, J, 3)``), the same numbers as
+    ``mpjpe_pose_mm``, ``mpjpe_camera_mm``, ``pa_mpjpe_mm`` (all joints and ``h36m``) and ``mpjpe_absolute_mm``:
+    each of those computes both configurations' joints again, which made scoring a run's estimates cost more
+    than recognising it from joint angles."""
+    return {"mpjpe_pose_mm": _mpjpe_pose(est_base, true_base),
+            "mpjpe_cam_mm": _mpjpe_camera(est_world, true_world),
+            "mpjpe_cam17_mm": _mpjpe_camera(est_world, true_world, h36m),
+            "pa_mpjpe_mm": _pa_mpjpe(est_world, true_world),
+            "pa_mpjpe17_mm": _pa_mpjpe(est_world, true_world, h36m),
+            "mpjpe_abs_mm": _mean_distance_mm(est_world, true_world)}
+
+
+def _mean_distance_mm(est: np.ndarray, true: np.ndarray) -> float:
+    return float(1000.0 * np.mean(np.linalg.norm(est - true, axis=-1)))
+
+
+def _mpjpe_pose(est_base: np.ndarray, true_base: np.ndarray) -> float:
+    return _mean_distance_mm(est_base[..., 1:, :], true_base[..., 1:, :])
+
+
+def _mpjpe_camera(est: np.ndarray, true: np.ndarray, joints: np.ndarray | None = None) -> float:
+    est, true = est - est[..., :1, :], true - true[..., :1, :]
+    sel = np.arange(1, est.shape[-2]) if joints is None else np.asarray(joints)
+    return _mean_distance_mm(est[..., sel, :], true[..., sel, :])
+
+
+def _pa_mpjpe(est: np.ndarray, true: np.ndarray, joints: np.ndarray | None = None) -> float:
     if joints is not None:
         est, true = est[..., joints, :], true[..., joints, :]
     est, true = est.reshape(-1, *est.shape[-2:]), true.reshape(-1, *true.shape[-2:])
-    return float(1000.0 * np.mean(np.linalg.norm(procrustes_align(est, true) - true, axis=-1)))
+    return _mean_distance_mm(procrustes_align(est, true), true)
 
 
 def base_errors(est_pos: np.ndarray, est_quat: np.ndarray, true_pos: np.ndarray, true_quat: np.ndarray) -> dict:
