@@ -30,8 +30,9 @@ def _rows(q: np.ndarray, shape: tuple) -> np.ndarray:
     return (q if q.shape == shape else np.broadcast_to(q, shape)).reshape(-1, 4)
 
 
-# The engine calls these a dozen times a frame on hundreds of quaternions, where numpy's per-operation cost was
-# most of their time. Compiled without fastmath, they keep numpy's order of operations, and so its rounding.
+# The engine calls the quaternion functions a dozen times a frame on hundreds of quaternions, where numpy's
+# per-operation cost was most of their time. Their kernels (here and below) are compiled without fastmath and keep
+# numpy's order of operations, and so its rounding.
 @numba.njit(cache=True)
 def _hamilton(a, b, out):
     """``out[i] = a[i] * b[i]`` over rows ``(n, 4)``; a one-row ``a`` or ``b`` is used for every row."""
@@ -96,22 +97,41 @@ def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def exp(rotvec: np.ndarray) -> np.ndarray:
     """Quaternion of a rotation vector ``(..., 3)`` (axis times angle, radians)."""
-    rotvec = np.asarray(rotvec, dtype=float)
-    angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
-    half = 0.5 * angle
-    # sin(x/2)/x, with its series near zero.
-    scale = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 1e-8, angle, 1.0), 0.5 - angle**2 / 48.0)
-    return np.concatenate([np.cos(half), scale * rotvec], axis=-1)
+    rotvec = np.ascontiguousarray(rotvec, dtype=float)
+    out = np.empty(rotvec.shape[:-1] + (4,))
+    _exp(rotvec.reshape(-1, 3), out.reshape(-1, 4))
+    return out
+
+
+@numba.njit(cache=True)
+def _exp(v, out):
+    """``out[i]``: the quaternion of rotation vector ``v[i]``; ``sin(x/2)/x`` with its series near zero."""
+    for i in range(len(v)):
+        x, y, z = v[i, 0], v[i, 1], v[i, 2]
+        angle = np.sqrt(x * x + y * y + z * z)
+        half = 0.5 * angle
+        scale = np.sin(half) / angle if angle > 1e-8 else 0.5 - angle * angle / 48.0
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = np.cos(half), scale * x, scale * y, scale * z
 
 
 def log(q: np.ndarray) -> np.ndarray:
     """Rotation vector ``(..., 3)`` of unit quaternions, angle in [0, pi] (the shorter way round)."""
-    q = np.asarray(q, dtype=float)
-    q = q * np.where(q[..., :1] < 0, -1.0, 1.0)
-    s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
-    angle = 2.0 * np.arctan2(s, q[..., :1])
-    scale = np.where(s > 1e-12, angle / np.where(s > 1e-12, s, 1.0), 2.0 / np.maximum(q[..., :1], 1e-300))
-    return scale * q[..., 1:]
+    q = np.ascontiguousarray(q, dtype=float)
+    out = np.empty(q.shape[:-1] + (3,))
+    _log(q.reshape(-1, 4), out.reshape(-1, 3))
+    return out
+
+
+@numba.njit(cache=True)
+def _log(q, out):
+    """``out[i]``: the rotation vector of quaternion ``q[i]`` (``q`` or ``-q``, whichever has ``w >= 0``)."""
+    for i in range(len(q)):
+        sign = -1.0 if q[i, 0] < 0 else 1.0
+        w, x, y, z = q[i, 0] * sign, q[i, 1] * sign, q[i, 2] * sign, q[i, 3] * sign
+        s = np.sqrt(x * x + y * y + z * z)
+        angle = 2.0 * np.arctan2(s, w)
+        scale = angle / s if s > 1e-12 else 2.0 / np.maximum(w, 1e-300)
+        out[i, 0], out[i, 1], out[i, 2] = scale * x, scale * y, scale * z
 
 
 def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -142,8 +162,9 @@ def weighted_mean(q: np.ndarray, weights: np.ndarray | None = None) -> np.ndarra
 def yaw(angle: np.ndarray) -> np.ndarray:
     """Quaternions of rotations about world z by ``angle`` (radians)."""
     half = 0.5 * np.asarray(angle, dtype=float)
-    zero = np.zeros_like(half)
-    return np.stack([np.cos(half), zero, zero, np.sin(half)], axis=-1)
+    out = np.zeros(half.shape + (4,))
+    out[..., 0], out[..., 3] = np.cos(half), np.sin(half)
+    return out
 
 
 def heading(q: np.ndarray) -> np.ndarray:

@@ -130,3 +130,20 @@ def test_finite_difference_rates_are_exact_for_constant_motion(rng):
                                atol=1e-9)
     assert np.array_equal(g.body_angular_velocity(q[:1], 0.1), np.zeros((1, 3)))
     assert np.array_equal(g.finite_difference(x[:1], 0.1), np.zeros((1, 3)))
+
+
+def test_exp_and_log_kernels_against_the_formulas_in_numpy():
+    """The compiled ``exp`` and ``log`` against their formulas written in numpy, for rotation vectors near zero
+    (the series), of every size up to a half turn, and quaternions with ``w < 0`` (the shorter way round)."""
+    rng = np.random.default_rng(11)
+    v = rng.normal(size=(400, 3)) * np.concatenate([np.full(100, 1e-10), rng.uniform(0, np.pi, 300)])[:, None] / 2
+    angle = np.linalg.norm(v, axis=-1, keepdims=True)
+    scale = np.where(angle > 1e-8, np.sin(0.5 * angle) / np.where(angle > 1e-8, angle, 1.0), 0.5 - angle**2 / 48.0)
+    np.testing.assert_allclose(g.exp(v), np.concatenate([np.cos(0.5 * angle), scale * v], axis=-1), rtol=1e-15,
+                               atol=1e-300)
+    q = g.normalize(rng.normal(size=(400, 4)))
+    p = q * np.where(q[:, :1] < 0, -1.0, 1.0)
+    s = np.linalg.norm(p[:, 1:], axis=-1, keepdims=True)
+    want = 2.0 * np.arctan2(s, p[:, :1]) / s * p[:, 1:]
+    np.testing.assert_allclose(g.log(q), want, rtol=1e-14)
+    assert g.exp(v.reshape(4, 100, 3)).shape == (4, 100, 4) and g.log(q.reshape(2, 200, 4)).shape == (2, 200, 3)
