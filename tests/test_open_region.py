@@ -18,3 +18,17 @@ def test_cells_stay_open_for_the_memory_then_close():
     # Flows outside the image are ignored rather than wrapped around.
     mask = region.update(np.array([[-30.0, 500.0, 0.0, 0.0]]))
     assert not mask.held(np.array([[0.0, 0.0], [159.0, 119.0]])).any()
+
+
+def test_the_margin_is_scipys_three_by_three_maximum_filter():
+    """The open cells are the recent ones dilated by one cell, as ``scipy.ndimage.maximum_filter`` of size 3
+    computes it (its border mode reflects, which for a maximum ignores the outside), on random grids."""
+    from scipy.ndimage import maximum_filter
+
+    from harness.engine.open_region import _dilated
+
+    rng = np.random.default_rng(4)
+    for shape in [(1, 1), (1, 7), (6, 1), (30, 40)]:
+        last = np.where(rng.random(shape) < 0.1, rng.integers(0, 10, shape), -np.inf)
+        for since in (0, 5, 9, 10):
+            np.testing.assert_array_equal(_dilated(last, since), maximum_filter(last >= since, size=3))

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy.ndimage import maximum_filter
 
 
 def _cells(pix: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
@@ -67,4 +66,20 @@ class OpenRegion:
             rows, cols = _cells(np.asarray(flows, dtype=float)[:, :2], self.cell)
             inside = (rows >= 0) & (rows < self.shape[0]) & (cols >= 0) & (cols < self.shape[1])
             self._last[rows[inside], cols[inside]] = self._frame
-        return OpenMask(maximum_filter(self._last >= self._frame - self.memory, size=3), self.cell)
+        return OpenMask(_dilated(self._last, self._frame - self.memory), self.cell)
+
+
+@numba.njit(cache=True)
+def _dilated(last, since):
+    """The cells whose 3 x 3 neighbourhood (within the grid) holds a cell that last saw a flow at frame ``since``
+    or later: one pass (scipy's ``maximum_filter`` of the recent cells took 0.2 ms a frame, 8% of the given-pose
+    baseline's time)."""
+    rows, cols = last.shape
+    out = np.zeros((rows, cols), dtype=np.bool_)
+    for r in range(rows):
+        for c in range(cols):
+            if last[r, c] >= since:
+                for i in range(max(r - 1, 0), min(r + 2, rows)):
+                    for j in range(max(c - 1, 0), min(c + 2, cols)):
+                        out[i, j] = True
+    return out
