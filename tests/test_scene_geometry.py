@@ -239,3 +239,27 @@ def test_camera_that_sees_nothing_gives_an_empty_observation_and_a_warning(body,
     with pytest.raises(SceneError, match="sees none"):
         simulate(walk, SceneSpec(camera=spec.camera, occluders=OccluderSpec("pillar", 0.3)),
                  np.random.default_rng(0), body)
+
+
+def test_camera_inside_the_body_by_bounding_spheres_is_the_signed_distance_test(body, walk):
+    """``_camera_inside_body`` tests only the geoms whose bounding sphere holds the camera: the same answer as
+    every geom's signed distance, for points spread over the posed body (many inside a geom) and around it."""
+    from harness.body.surface import SurfacePoints, geom_sdf
+    from harness.scene.model import SceneModel
+    from harness.scene.visibility import _camera_inside_body
+
+    scene = SceneModel(body, SurfacePoints(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, 3))),
+                       [], 45.0, 64, 48)
+    scene.pose(walk.qpos[5])
+    m, d = scene.model, scene.data
+    rng = np.random.default_rng(3)
+    centres = d.geom_xpos[scene.body_geoms][rng.integers(0, len(scene.body_geoms), 300)]
+    points = centres + rng.normal(0, 0.08, centres.shape)
+    inside = 0
+    for p in points:
+        want = next((int(g) for g in scene.body_geoms
+                     if geom_sdf(int(m.geom_type[g]), m.geom_size[g],
+                                 ((p - d.geom_xpos[g]) @ d.geom_xmat[g].reshape(3, 3))[None])[0] <= 0.0), -1)
+        assert _camera_inside_body(scene, p) == want
+        inside += want >= 0
+    assert 30 < inside < 270                    # both answers are exercised

@@ -43,9 +43,13 @@ def in_view(intr: Intrinsics, points_cam: np.ndarray) -> np.ndarray:
 
 
 def _camera_inside_body(scene: SceneModel, camera_pos: np.ndarray) -> int:
-    """Geom id of a humanoid geom that contains ``camera_pos``, or -1."""
+    """Geom id of a humanoid geom that contains ``camera_pos``, or -1. Only the geoms whose bounding sphere
+    (MuJoCo's ``geom_rbound``) holds the camera are tested: a camera metres away skips every signed distance,
+    which took 40% of a run's simulation."""
     m, d = scene.model, scene.data
-    for g in scene.body_geoms:
+    geoms = np.asarray(scene.body_geoms)
+    near = np.linalg.norm(camera_pos - d.geom_xpos[geoms], axis=1) <= m.geom_rbound[geoms]
+    for g in geoms[near]:
         local = (camera_pos - d.geom_xpos[g]) @ d.geom_xmat[g].reshape(3, 3)
         if geom_sdf(int(m.geom_type[g]), m.geom_size[g], local[None])[0] <= 0.0:
             return int(g)
