@@ -97,9 +97,14 @@ def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def exp(rotvec: np.ndarray) -> np.ndarray:
     """Quaternion of a rotation vector ``(..., 3)`` (axis times angle, radians)."""
-    rotvec = np.ascontiguousarray(rotvec, dtype=float)
-    out = np.empty(rotvec.shape[:-1] + (4,))
-    _exp(rotvec.reshape(-1, 3), out.reshape(-1, 4))
+    return _row_by_row(_exp, rotvec, 4)
+
+
+def _row_by_row(kernel, x: np.ndarray, width: int) -> np.ndarray:
+    """``kernel`` (rows in, rows of ``width`` out) over the last axis of ``x``, its leading axes kept."""
+    x = np.ascontiguousarray(x, dtype=float)
+    out = np.empty(x.shape[:-1] + (width,))
+    kernel(x.reshape(-1, x.shape[-1]), out.reshape(-1, width))
     return out
 
 
@@ -116,10 +121,7 @@ def _exp(v, out):
 
 def log(q: np.ndarray) -> np.ndarray:
     """Rotation vector ``(..., 3)`` of unit quaternions, angle in [0, pi] (the shorter way round)."""
-    q = np.ascontiguousarray(q, dtype=float)
-    out = np.empty(q.shape[:-1] + (3,))
-    _log(q.reshape(-1, 4), out.reshape(-1, 3))
-    return out
+    return _row_by_row(_log, q, 3)
 
 
 @numba.njit(cache=True)
