@@ -9,10 +9,12 @@ observations and the database are made once with this checkout and written to a 
 for a reference from before the both-handed database, which knows one chain only); the engine
 of this checkout tracks them in this process (its stages and the phases of a clip), then this checkout and
 ``--reference`` (a git commit, checked out into a temporary worktree; default: the engine before issue 22's
-speed work) each time the same files in subprocesses, ``--repeats`` times, alternating which goes first: the
-machine's load drifts by more than a small change is worth, and alternating spreads it over both. Machines
-differ in speed (it prints the CPU: its generation and vector width move the time by up to 1.8x), so the ratio
-of the medians is the number to compare; the target is 60 frames per second
+speed work) each wait in a subprocess of their own and take the same clips in turns, clip by clip, which goes
+first alternating, ``--repeats`` rounds: the machine's speed drifts by more than a small change is worth within
+minutes (10-20% within the hour on an AMD Zen 3), and a clip takes a second, so each pair of clips is timed
+under the same conditions. Machines differ in speed (it prints the CPU: its generation and vector width move the
+time by up to 1.8x), so the ratio of the two engines' times, pooled over the clip pairs with a bootstrap
+interval, is the number to compare; the target is 60 frames per second
 (16.7 ms per frame) on one core and 2.5 times the reference's speed. This engine's causal loop (the stages of
 every frame, what a live camera needs) is timed apart from its offline estimate (the backward pass, for
 evaluation), which ``Tracker.run`` also makes. Numba kernels are compiled (and cached) before timing, for both
@@ -56,51 +58,85 @@ sizes = {} if sys.argv[2] == "default" else {"particles": int(sys.argv[2])}
 sizes |= {} if sys.argv[3] == "default" else {"model_points": int(sys.argv[3])}
 tracker = Tracker(db, BodyModel.load(), TrackerConfig(**sizes, **json.loads(sys.argv[4])),
                   rng=np.random.default_rng(1))
-out = []
-for i, path in enumerate(sys.argv[5:]):
-    obs = Observation.load(path)
+clips = [Observation.load(path) for path in sys.argv[5:]]
+tracker.run(clips[0])        # the first clip compiles the kernels
+print("ready", flush=True)
+for line in sys.stdin:       # one clip index a line: its whole run and causal loop (s) and frames
+    obs = clips[int(line)]
     t0 = time.perf_counter()
     est = tracker.run(obs)
-    if i:        # the first clip compiles the kernels
-        causal = 1e-3 * sum(est.timing.values()) * len(obs) if getattr(est, "timing", None) else None
-        out.append([time.perf_counter() - t0, causal, len(obs)])
-print(json.dumps(out))
+    causal = 1e-3 * sum(est.timing.values()) * len(obs) if getattr(est, "timing", None) else None
+    print(json.dumps([time.perf_counter() - t0, causal, len(obs)]), flush=True)
 """
 
 
-def _times(tree: Path, db_path: Path, obs_paths: list[Path], particles: int | None, points: int | None,
-           settings: dict) -> tuple[float, float]:
-    """ms per frame of ``Tracker.run`` (both passes where the engine has two) and of its causal loop (the
-    whole run for an engine without per-stage timing) of the engine checked out in ``tree``, on the files, in a
-    subprocess, with engine ``settings``."""
-    env = dict(_USER_ENV, PYTHONPATH=str(tree))
-    done = subprocess.run([sys.executable, "-c", _TIMING_SCRIPT, str(db_path), str(particles or "default"),
-                           str(points or "default"), json.dumps(settings), *map(str, obs_paths)], cwd=tree, env=env,
-                          check=True, capture_output=True, text=True)
-    times = json.loads(done.stdout.strip().splitlines()[-1])
-    frames = sum(n for _, _, n in times)
-    return (1e3 * sum(t for t, _, _ in times) / frames,
-            1e3 * sum(t if c is None else c for t, c, _ in times) / frames)
+class _Engine:
+    """An engine checked out in ``tree`` running in a subprocess of its own (``_TIMING_SCRIPT``), with the
+    clips loaded and its kernels compiled; ``run(k)`` times clip ``k``."""
+
+    def __init__(self, tree: Path, db_path: Path, obs_paths: list[Path], particles: int | None,
+                 points: int | None, settings: dict):
+        self.process = subprocess.Popen(
+            [sys.executable, "-c", _TIMING_SCRIPT, str(db_path), str(particles or "default"),
+             str(points or "default"), json.dumps(settings), *map(str, obs_paths)], cwd=tree,
+            env=dict(_USER_ENV, PYTHONPATH=str(tree)), stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        while self._line() != "ready":          # anything the engine prints while loading
+            pass
+
+    def _line(self) -> str:
+        line = self.process.stdout.readline()
+        if not line:
+            raise RuntimeError(f"the engine's subprocess stopped (exit code {self.process.wait()})")
+        return line.strip()
+
+    def run(self, clip: int) -> tuple[float, float, int]:
+        """Seconds of the whole run and of the causal loop (the whole run for an engine without per-stage
+        timing), and the clip's frames."""
+        self.process.stdin.write(f"{clip}\n")
+        self.process.stdin.flush()
+        whole, causal, frames = json.loads(self._line())
+        return whole, whole if causal is None else causal, frames
+
+    def close(self) -> None:
+        self.process.stdin.close()
+        self.process.wait()
 
 
 def side_by_side(commit: str, db_path: Path, obs_paths: list[Path], particles: int | None, points: int | None,
-                 repeats: int, settings: dict) -> tuple[list, list]:
-    """This checkout's (with engine ``settings``) and ``commit``'s (its defaults) ``(whole run, causal loop)`` ms
-    per frame, ``repeats`` times each, alternating which runs first."""
-    mine, theirs = [], []
+                 repeats: int, settings: dict) -> tuple[np.ndarray, np.ndarray]:
+    """This checkout's (with engine ``settings``) and ``commit``'s (its defaults) seconds ``(whole run, causal
+    loop)`` and frames per clip, ``(repeats, clips, 3)`` each. Both engines wait in subprocesses of their own and
+    take the clips in turns, clip by clip, which goes first alternating: the machine's speed drifts by more than
+    a small change is worth within minutes, and a clip takes a second."""
     with tempfile.TemporaryDirectory() as tmp:
         tree = Path(tmp) / "reference"
         subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), commit], check=True,
                        capture_output=True)
+        engines = []
         try:
+            engines = [_Engine(ROOT, db_path, obs_paths, particles, points, settings),
+                       _Engine(tree, db_path, obs_paths, particles, points, {})]
+            times = np.zeros((2, repeats, len(obs_paths) - 1, 3))
             for r in range(repeats):
-                order = [(ROOT, settings, mine), (tree, {}, theirs)]
-                for where, engine_settings, times in (order if r % 2 == 0 else order[::-1]):
-                    times.append(_times(where, db_path, obs_paths, particles, points, engine_settings))
+                for k in range(1, len(obs_paths)):
+                    for e in ((0, 1) if (r + k) % 2 else (1, 0)):
+                        times[e, r, k - 1] = engines[e].run(k)
         finally:
+            for engine in engines:
+                engine.close()
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=True,
                            capture_output=True)
-    return mine, theirs
+    return times[0], times[1]
+
+
+def paired_ratio(mine: np.ndarray, theirs: np.ndarray, rng: np.random.Generator, draws: int = 2000
+                 ) -> tuple[float, float, float]:
+    """The reference's time over this engine's, pooled over clip pairs ``(n,)`` timed back to back, with a 95%
+    bootstrap interval over the pairs."""
+    ratio = theirs.sum() / mine.sum()
+    pick = rng.integers(0, len(mine), (draws, len(mine)))
+    boot = theirs[pick].sum(axis=1) / mine[pick].sum(axis=1)
+    return ratio, *np.percentile(boot, [2.5, 97.5])
 
 
 def print_profile(profiler: cProfile.Profile, frames: int, whole_ms: float) -> None:
@@ -186,7 +222,8 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=None, help="model points of both engines (default: each its own)")
     ap.add_argument("--reference", default=DEFAULT_REFERENCE, help="git commit of the reference engine "
                                                                    "('none' to skip it)")
-    ap.add_argument("--repeats", type=int, default=3, help="alternating runs of each engine for the ratio")
+    ap.add_argument("--repeats", type=int, default=3, help="rounds of the clips, both engines taking each "
+                                                             "clip in turn, for the ratio")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="engine settings of this engine")
     ap.add_argument("--profile", action="store_true", help="also split this engine's time into numba kernels, "
                                                             "MuJoCo and the Python (with numpy) around them")
@@ -245,14 +282,20 @@ def main() -> None:
         if args.reference != "none":
             mine, ref = side_by_side(args.reference, db_path, obs_paths, args.particles, args.points, args.repeats,
                                      settings)
-            (mine_ms, mine_causal), (ref_ms, ref_causal) = np.median(mine, axis=0), np.median(ref, axis=0)
-            print(f"\nside by side, in subprocesses, {args.repeats} alternating repeats, whole run (causal loop) "
-                  f"ms/frame:\n  this engine  " + ", ".join(f"{w:.1f} ({c:.1f})" for w, c in mine) +
-                  f"\n  {args.reference:12s} " + ", ".join(f"{w:.1f} ({c:.1f})" for w, c in ref))
-            print(f"medians: this engine {mine_ms:.1f} ({mine_causal:.1f}, {1e3 / mine_causal:.0f} fps), {args.reference} "
-                  f"{ref_ms:.1f} ({ref_causal:.1f}); against the reference's whole run, this engine's whole run (with the "
-                  f"offline pass) is {ref_ms / mine_ms:.2f}x faster and its causal loop {ref_ms / mine_causal:.2f}x")
-
+            per_repeat = lambda t, i: 1e3 * t[..., i].sum(axis=1) / t[..., 2].sum(axis=1)  # noqa: E731
+            print(f"\nside by side, each engine in a subprocess of its own, clip by clip in turns, {args.repeats} "
+                  f"repeats; whole run (causal loop) ms/frame per repeat:")
+            for name, t in (("this engine", mine), (args.reference, ref)):
+                print(f"  {name:12s} " + ", ".join(f"{w:.1f} ({c:.1f})" for w, c in zip(per_repeat(t, 0),
+                                                                                        per_repeat(t, 1))))
+            rng = np.random.default_rng(0)
+            for i, what in ((1, "causal loop"), (0, "whole run")):
+                ratio, lo, hi = paired_ratio(mine[..., i].ravel(), ref[..., i].ravel(), rng)
+                ms = 1e3 * mine[..., i].sum() / mine[..., 2].sum()
+                ref_ms = 1e3 * ref[..., i].sum() / ref[..., 2].sum()
+                print(f"{what}: this engine {ms:.1f} ms/frame ({1e3 / ms:.0f} fps), {args.reference} {ref_ms:.1f}; "
+                      f"{args.reference} / this engine {ratio:.2f}x [{lo:.2f}, {hi:.2f}] (95%, {mine[..., i].size} "
+                      f"clip pairs)")
 
 if __name__ == "__main__":
     main()
