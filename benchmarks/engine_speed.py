@@ -94,7 +94,10 @@ class _Engine:
         timing), and the clip's frames."""
         self.process.stdin.write(f"{clip}\n")
         self.process.stdin.flush()
-        whole, causal, frames = json.loads(self._line())
+        line = self._line()
+        while not line.startswith("["):         # anything else the engine prints while it runs
+            line = self._line()
+        whole, causal, frames = json.loads(line)
         return whole, whole if causal is None else causal, frames
 
     def close(self) -> None:
