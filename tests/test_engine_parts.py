@@ -624,6 +624,10 @@ def test_robust_emissions_kernel_against_numpy_over_every_state(database):
             # A sum of ~100 terms, each rounded: about 100 unit round-offs of the sum, within 1e-13 with margin.
             np.testing.assert_allclose(db.log_emissions(f, outlier=eps, measured=measured), want, rtol=1e-13,
                                        atol=1e-11)
+    gap = f.copy()
+    gap[2, 5] = np.nan                       # a feature not measured at one frame, not masked: NaN, as numpy
+    got = db.log_emissions(gap, outlier=0.05)
+    assert np.isnan(got[2]).all() and np.isfinite(np.delete(got, 2, axis=0)).all()
 
 
 def test_one_far_feature_does_not_hand_the_answer_to_the_broad_class(database):

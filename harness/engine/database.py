@@ -267,7 +267,7 @@ def _robust_log_densities(features, mean, inv_var, log_in, log_out, out):
                 for k in range(K):
                     d = f[k] - m[k]
                     z = a[k] - 0.5 * d * d * iv[k]
-                    hi, lo = max(z, log_out[k]), min(z, log_out[k])
+                    hi, lo = np.maximum(z, log_out[k]), np.minimum(z, log_out[k])     # NaN stays NaN, as in numpy
                     mantissa, scale = exp_parts(max(lo - hi, EXP_MIN))
                     acc += hi + log_normal(1.0 + mantissa * scale)
                 out[t, c, s] = acc
