@@ -86,7 +86,7 @@ def segments_blocked(start: np.ndarray, end: np.ndarray, boxes: list[Obstacle], 
 @numba.njit(cache=True)
 def _blocked_by_box(start, end, centre, half, c, s, eps, blocked):
     """``segments_blocked`` for one box, segment by segment into ``blocked`` (``|=``): the wall presets size their
-    box by bisection, and numpy's two dozen array operations a call made it 40% of a run's simulation."""
+    box by bisection, and numpy's two dozen array operations a call made it a quarter of a run's simulation."""
     a, b = np.empty(3), np.empty(3)
     for r in range(len(start)):
         for point, out in ((start[r], a), (end[r], b)):          # ``Obstacle.to_local``
