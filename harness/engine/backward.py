@@ -49,13 +49,13 @@ class SettledStarts(ParticleTracks):
         cfg = self.scorer.config
         tracks = []
         for primitive, origin, cloud in self.starts:
-            # Every start its own copy: the primitives without a live track start from the same leader's cloud,
-            # and a cloud that several tracks held was weighed once per holder, by each one's primitive.
-            variants = [(origin, ParticleCloud(cloud.positions.copy(), cloud.quats.copy(), cloud.log_weights.copy()))]
+            variants = [(origin, cloud.quats.copy())]
             if cfg.twin_track:
-                variants.append((origin + "~twin", ParticleCloud(cloud.positions.copy(), twin(cloud.quats, frame.gravity),
-                                                                 cloud.log_weights.copy())))
-            for name, c in variants:
+                variants.append((origin + "~twin", twin(cloud.quats, frame.gravity)))
+            for name, quats in variants:
+                # Every start its own copy: the primitives without a live track start from the same leader's
+                # cloud, and a cloud that several tracks held was weighed once per holder, by each one's primitive.
+                c = ParticleCloud(cloud.positions.copy(), quats, cloud.log_weights.copy())
                 belief = new_recognizer(self.scorer.model.db, cfg).restrict([primitive])
                 prefix = f"{self.scorer.model.db.classes_[primitive]}/"
                 tracks.append(Track(self._spawned, prefix + name, belief, c, primitive=primitive, memory=self.memory))

@@ -327,12 +327,10 @@ def _prepared(flows: np.ndarray, img: ImageDistributions, model: FlowModel, held
     log_in = np.log1p(-model.outlier_prob)
     dists = (np.ascontiguousarray(img.pix), np.ascontiguousarray(img.pix_cov), np.ascontiguousarray(img.flow),
              np.ascontiguousarray(img.flow_cov), np.ascontiguousarray(img.visibility, dtype=float))
-    if held is None:
-        held = np.zeros(img.visibility.shape, dtype=np.bool_)
-    elif np.shape(held) != img.visibility.shape:     # broadcast_to costs 20 us a call; the frame's own mask fits
-        held = np.ascontiguousarray(np.broadcast_to(held, img.visibility.shape), dtype=np.bool_)
-    else:
-        held = np.ascontiguousarray(held, dtype=np.bool_)
+    held = np.zeros(img.visibility.shape, dtype=np.bool_) if held is None else np.asarray(held, dtype=np.bool_)
+    if held.shape != img.visibility.shape:          # broadcast_to costs 20 us a call; the frame's own mask fits
+        held = np.broadcast_to(held, img.visibility.shape)
+    held = np.ascontiguousarray(held)
     scalars = (float(model.noise_px**2), float(2.0 * (model.noise_px * model.fps) ** 2), log_in, log_out,
                int(model.weight_iterations), float(model.smoothing))
     M = len(flows)

@@ -92,6 +92,14 @@ class RunInputs:
     def recognition_columns(self) -> tuple[str, ...]:
         return RECOGNITION_COLUMNS if self.labels is None else STREAM_RECOGNITION_COLUMNS
 
+    @cached_property
+    def true_joints(self) -> tuple[np.ndarray, np.ndarray]:
+        """The subject's true joint centres ``(T, J, 3)`` in the camera frame and in its base frame, computed
+        once for every method the run scores."""
+        truth = self.truth
+        true_cam = metrics.camera_qpos(self.subject, truth.base_pos_cam, truth.base_quat_cam, truth.qpos[:, 7:])
+        return body_origins(self.subject, true_cam, frame="world"), body_origins(self.subject, true_cam, frame="base")
+
 
 class EngineRuns:
     """The engine's runs of one evaluation run, each made on first use and kept: from the flows alone, and
@@ -215,17 +223,15 @@ def recovery_scores(inputs: RunInputs, qpos_est: np.ndarray) -> dict:
     """Recovery columns of an estimate ``(T, 57)`` (camera-frame base). True joints are the observed
     subject's (a scaled subject's joints are where that subject's are; docs/evaluation.md)."""
     body, subject, truth, obs = inputs.body, inputs.subject, inputs.truth, inputs.obs
-    true_cam = metrics.camera_qpos(subject, truth.base_pos_cam, truth.base_quat_cam, truth.qpos[:, 7:])
     frame = np.concatenate([np.full(len(i), t) for t, i in enumerate(truth.marker_ids)]).astype(int)
     marker = np.concatenate(truth.marker_ids).astype(int)
     uv = np.concatenate([f[:, :2] for f in obs.flows])
     keep = marker >= 0
     h36m = metrics.h36m_joints(body)
     out = {"angle_rms_deg": metrics.angle_rms_deg(qpos_est[:, 7:], truth.qpos[:, 7:])}
-    out |= metrics.joint_errors_mm(body_origins(body, qpos_est, frame="world"),
-                                   body_origins(subject, true_cam, frame="world"),
-                                   body_origins(body, qpos_est, frame="base"),
-                                   body_origins(subject, true_cam, frame="base"), h36m)
+    true_world, true_base = inputs.true_joints
+    out |= metrics.joint_errors_mm(body_origins(body, qpos_est, frame="world"), true_world,
+                                   body_origins(body, qpos_est, frame="base"), true_base, h36m)
     out["reproj_px"] = metrics.reprojection_px(body, qpos_est, nominal_markers(truth.markers, subject),
                                                obs.intrinsics, frame[keep], marker[keep], uv[keep])
     out |= metrics.base_errors(qpos_est[:, :3], qpos_est[:, 3:7], truth.base_pos_cam, truth.base_quat_cam)
