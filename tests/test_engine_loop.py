@@ -263,3 +263,50 @@ def test_a_track_of_several_primitives_weighs_its_pose_under_every_primitive_ali
     by_belief = TrackerConfig(weigh_by_belief=True, weigh_class_mass=0.9999)
     assert not np.allclose(shifted.pose_mixture(by_belief)[0], track.pose_mixture(by_belief)[0])
 
+
+
+def test_a_copied_belief_is_a_snapshot_and_new_beliefs_are_independent(body, trained):
+    """``copy.copy`` of a belief (each track's snapshot every frame) keeps the belief it was taken at while the
+    original moves on, and moved by the same frames gives the same numbers; the beliefs a pose source hands its new
+    tracks (``ParticleTracks.new_belief``, copies of one) equal a newly built belief and do not share changes; a
+    track of one primitive weighs its particles under that primitive's active states alone."""
+    from harness.engine.switching import SwitchingRecognizer
+    from harness.engine.track import new_recognizer
+
+    rng = np.random.default_rng(5)
+    for rec in (Recognizer(trained, 0.05, 1e-4), SwitchingRecognizer(trained, 0.02, 0.05, 1e-4)):
+        frames = rng.normal(-20.0, 5.0, (3, *rec.log_alpha.shape))
+        rec.predict()
+        rec.update(frames[0])
+        snap = copy.copy(rec)
+        assert type(snap) is type(rec)
+        kept = snap.log_alpha.copy(), snap.posterior.copy(), snap.active().copy()
+        for log_b in frames[1:]:
+            rec.predict()
+            rec.update(log_b)
+        assert not np.allclose(rec.log_alpha, kept[0])
+        for got, expect in zip((snap.log_alpha, snap.posterior, snap.active()), kept):
+            np.testing.assert_array_equal(got, expect)
+        for log_b in frames[1:]:
+            snap.predict()
+            snap.update(log_b)
+        np.testing.assert_array_equal(snap.log_alpha, rec.log_alpha)
+        np.testing.assert_array_equal(snap.class_posterior, rec.class_posterior)
+
+    cfg = TrackerConfig()
+    source = ParticleTracks(Tracker(trained, body, cfg).scorer, np.random.default_rng(0))
+    a, b, fresh = source.new_belief(), source.new_belief(), new_recognizer(trained, cfg)
+    for got in (a, b):
+        np.testing.assert_array_equal(got.log_alpha, fresh.log_alpha)
+        np.testing.assert_array_equal(got.posterior, fresh.posterior)
+        np.testing.assert_array_equal(got.active(), fresh.active())
+    a.restrict([1])
+    a.predict()
+    a.update(rng.normal(-20.0, 5.0, a.log_alpha.shape))
+    np.testing.assert_array_equal(b.log_alpha, fresh.log_alpha)
+    np.testing.assert_array_equal(b.class_posterior, fresh.class_posterior)
+    log_w, rows = Track(0, "walk/lead", a, primitive=1).pose_mixture(cfg)
+    expect = np.zeros(a.log_alpha.shape)
+    expect[1] = np.where(a.active()[1], a.posterior[1], 0.0)
+    np.testing.assert_array_equal(log_w, [0.0])
+    np.testing.assert_array_equal(rows, expect.reshape(1, -1))

@@ -31,7 +31,7 @@ from harness.engine.estimate import Estimate
 from harness.engine.particle_filter import ParticleCloud
 from harness.engine.pose_source import ParticleTracks
 from harness.engine.records import FrameRecord
-from harness.engine.track import Track, new_recognizer, twin
+from harness.engine.track import Track, twin
 
 
 class SettledStarts(ParticleTracks):
@@ -56,7 +56,7 @@ class SettledStarts(ParticleTracks):
                 # Every start its own copy: the primitives without a live track start from the same leader's
                 # cloud, and a cloud that several tracks held was weighed once per holder, by each one's primitive.
                 c = ParticleCloud(cloud.positions.copy(), quats, cloud.log_weights.copy())
-                belief = new_recognizer(self.scorer.model.db, cfg).restrict([primitive])
+                belief = self.new_belief().restrict([primitive])
                 prefix = f"{self.scorer.model.db.classes_[primitive]}/"
                 tracks.append(Track(self._spawned, prefix + name, belief, c, primitive=primitive, memory=self.memory))
                 self._spawned += 1

@@ -177,11 +177,13 @@ class Track:
 
         One moment-matched blob over every primitive is so wide early on that the particles cannot tell depth;
         a term per primitive keeps the shape of each."""
-        joint = np.where(self.recognizer.active(), self.recognizer.posterior, 0.0)
+        rec = self.recognizer
         if self.primitive is not None:          # a belief in one primitive: one term (the general path's answer)
-            rows = np.zeros_like(joint)
-            rows[self.primitive] = joint[self.primitive]
+            rows = np.zeros(rec.log_alpha.shape)
+            p = self.primitive
+            rows[p] = np.where(rec.active()[p], rec.posterior[p], 0.0)
             return np.zeros(1), rows.reshape(1, -1)
+        joint = np.where(rec.active(), rec.posterior, 0.0)
         post = self.recognizer.class_posterior
         order = np.argsort(post)[::-1]
         k = min(max_classes, int(np.searchsorted(np.cumsum(post[order]), mass)) + 1)
