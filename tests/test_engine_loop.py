@@ -216,7 +216,7 @@ def test_recognition_scores_velocities_given_positions_at_a_tracked_pose_and_flo
                        scorer.model.dists, states)
     n_eff = scorer.config.n_eff_recognition
     velocities = tempered(velocity_log_likelihoods(frame.flows, img, scorer.flow_model(frame),
-                                                   held=frame.held(img.pix)), n_eff)
+                                                   open_mask=frame.open), n_eff)
     flows = scorer.frame_log_likelihood(frame, img, n_eff)
     assert np.abs(velocities - flows).max() > 1.0          # the two rules differ on this frame
     for pose_given, expected in ((False, velocities), (True, flows)):

@@ -17,6 +17,7 @@ from harness.engine.likelihood import (FlowModel, flow_log_likelihoods, responsi
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
                                             motion_mean, pose_mixture_log_density, propose, propose_many,
                                             reweight_many, settled, systematic_resample, upright_orientations)
+from harness.engine.open_region import OpenMask
 from harness.engine.recovery import Prior, Recovery, refine_pose
 from harness.engine.transform import ImageDistributions, patch_std
 from harness.engine.vector_math import EXP32_MIN, LOG_MIN, atan_ratio, exp32_parts, exp_into, log_normal
@@ -185,13 +186,19 @@ def _brute_force(flows, img, h, noise, fps, W, Hh, eps, iterations, smoothing, h
 def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations, smoothing, share_held, M):
     H, P = 3, 12
     img = _random_image_distributions(rng, H, P)
-    held = rng.random((H, P)) < share_held
+    # The open region: a grid of 10 px cells over [0, 80)^2 (the points lie in [0, 100)^2, so some are outside it
+    # and never held), each cell open with chance ``share_held``; which points it holds, in numpy.
+    mask = OpenMask(rng.random((8, 8)) < share_held, 10.0)
+    cells = np.floor(img.pix / 10.0).astype(int)
+    inside = (cells >= 0).all(axis=-1) & (cells < 8).all(axis=-1)
+    held = inside & mask.open[np.clip(cells[..., 1], 0, 7), np.clip(cells[..., 0], 0, 7)]
+    assert share_held == 0.0 or held.any()
     flows = np.concatenate([img.pix[0, :M] + rng.normal(0, 3, (M, 2)), rng.normal(0, 30, (M, 2))], axis=1)
     flows[-1, :2] = [5000.0, -300.0]                      # far from every point: an outlier
     noise, fps, W, Hh, eps = 1.5, 30.0, 640, 480, 0.05
     model = FlowModel(noise, fps, W, Hh, eps, weight_iterations=iterations, smoothing=smoothing)
-    got = flow_log_likelihoods(flows, img, model, held=held)
-    velocities = velocity_log_likelihoods(flows, img, model, held=held)
+    got = flow_log_likelihoods(flows, img, model, open_mask=mask)
+    velocities = velocity_log_likelihoods(flows, img, model, open_mask=mask)
     # The kernels hold the flows and the points' means in float32: the reference takes the same rounded inputs
     # (a flow moved by half a float32 ulp, 4e-6 px here), so what is left is float32's arithmetic, its unit
     # round-off (6e-8) times the exponents' terms (below 200 in these draws), and the cut (e^-25 of the outlier
@@ -205,7 +212,7 @@ def test_flow_likelihood_and_responsibilities_match_brute_force(rng, iterations,
         np.testing.assert_allclose(velocities[h], given, rtol=0, atol=2e-5)
         one = ImageDistributions(*(getattr(img, k)[h:h + 1] for k in ("pix", "pix_cov", "flow", "flow_cov",
                                                                         "visibility")))
-        r = responsibilities(flows, one, model, held=held[h:h + 1])
+        r = responsibilities(flows, one, model, open_mask=mask)
         np.testing.assert_allclose(r, resp, rtol=2e-5, atol=1e-10)
         assert np.all(r[:, img.visibility[h] == 0] == 0)
     # With every point invisible, every flow is an outlier.

@@ -96,7 +96,7 @@ def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trai
                                                     obs.intrinsics.height, cfg.outlier_prob,
                                                     weight_iterations=cfg.weight_iterations,
                                                     smoothing=cfg.weight_smoothing),
-                              held=mask.held(img.pix))
+                              open_mask=mask)
                 b[c, k] = tempered(ll, cfg.n_eff_recognition)[0]
         prior = start if first else np.einsum("cj,cjk->ck", alpha, trained.transmat_)
         joint = prior * np.exp(b)

@@ -46,10 +46,6 @@ class Frame:
     def has_flows(self) -> bool:
         return len(self.flows) > 0
 
-    def held(self, pix: np.ndarray) -> np.ndarray | None:
-        """Whether pixels ``(..., 2)`` lie in the open region; None when negative evidence is off."""
-        return None if self.open is None else self.open.held(pix)
-
 
 class Frames:
     """Builds a sequence's frames in order (state: the open region's memory and the frame count)."""

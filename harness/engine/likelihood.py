@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from harness.engine.open_region import OpenMask, is_open
 from harness.engine.transform import ImageDistributions
 from harness.engine.vector_math import EXP32_MIN, FAST, LOG_MIN, exp32_parts, log_normal
 
@@ -137,16 +138,16 @@ def _mixture(dens, points, n, visibility, held, p_in, p_out, iterations, smoothi
 
     The weights start from the visibility (normalised) and are adapted by ``iterations`` EM steps to the
     flows, shrunk towards that prior by ``smoothing`` pseudo-flows: points that explain no flow (hidden by an
-    obstacle the engine cannot know of) give their mass to the points that do. Points that are ``held`` (they
-    lie where flows have appeared recently, so no obstacle hides them) keep their prior proportions and share
-    what the free points leave: a held point without flows keeps its weight, and the hypothesis pays for it.
-    ``inv``: work array of ``M``."""
+    obstacle the engine cannot know of) give their mass to the points that do. Points that are held (``held[i]``
+    for visible point ``i``: they lie where flows have appeared recently, so no obstacle hides them) keep their
+    prior proportions and share what the free points leave: a held point without flows keeps its weight, and the
+    hypothesis pays for it. ``inv``: work array of ``M``."""
     norm = 0.0
     held_prior = 0.0
     for i in range(n):
         v = visibility[points[i]]
         norm += v
-        if held[points[i]]:
+        if held[i]:
             held_prior += v
     for i in range(n):
         weight[i] = visibility[points[i]] / norm
@@ -173,22 +174,23 @@ def _mixture(dens, points, n, visibility, held, p_in, p_out, iterations, smoothi
             s += weight[i]
         free = 0.0
         for i in range(n):
-            if not held[points[i]]:
+            if not held[i]:
                 weight[i] = (weight[i] + smoothing * visibility[points[i]] / norm) / (s + smoothing)
                 free += weight[i]
         if held_prior > 0.0:
             for i in range(n):
-                if held[points[i]]:
+                if held[i]:
                     weight[i] = (1.0 - free) * visibility[points[i]] / held_prior
 
 
 @numba.njit(cache=True)
 def _work(M, P):
     """float32 work arrays of one hypothesis: the densities and their points (``_densities``), the exponential's
-    arguments and powers of two, and the weights, inlier densities and inverses of ``_mixture``."""
+    arguments and powers of two, and the weights, inlier densities and inverses of ``_mixture``; which visible
+    points are held (``_hypothesis``)."""
     return (np.empty((P, M), dtype=np.float32), np.empty(P, dtype=np.int64), np.empty(M, dtype=np.float32),
             np.empty(M, dtype=np.float32), np.empty(P, dtype=np.float32), np.empty(M, dtype=np.float32),
-            np.empty(M, dtype=np.float32))
+            np.empty(M, dtype=np.float32), np.empty(P, dtype=np.bool_))
 
 
 @numba.njit(cache=True)
@@ -199,50 +201,53 @@ def _terms(log_in, log_out, smoothing):
 
 
 @numba.njit(cache=True)
-def _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, terms, weight_iterations,
-                work):
-    """The densities and the adapted mixture of one hypothesis, in ``work`` (``terms``: ``_terms``); returns the
+def _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, open_cells, inv_cell, pos_var, vel_var, terms,
+                weight_iterations, work):
+    """The densities and the adapted mixture of one hypothesis, in ``work`` (``terms``: ``_terms``), its visible
+    points held where they fall in the open region (``open_region.is_open``; an empty grid: none); returns the
     number of visible points."""
-    dens, points, arg, scale, weight, total, inv = work
+    dens, points, arg, scale, weight, total, inv, held = work
     log_cut, p_in, p_out, smoothing = terms
     n = _densities(flows, pix, pix_cov, flow, flow_cov, visibility, pos_var, vel_var, log_cut, points, dens, arg,
                    scale)
+    for i in range(n):
+        held[i] = is_open(open_cells, inv_cell, pix[points[i], 0], pix[points[i], 1])
     _mixture(dens, points, n, visibility, held, p_in, p_out, weight_iterations, smoothing, weight, total, inv)
     return n
 
 
 @numba.njit(cache=True)
-def _flow_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in,
-                        log_out, weight_iterations, smoothing):
+def _flow_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibility, open_cells, inv_cell, pos_var,
+                        vel_var, log_in, log_out, weight_iterations, smoothing):
     H, P = visibility.shape
     M = flows.shape[1]
     out = np.empty((H, n_flows))
     work = _work(M, P)
     terms = _terms(log_in, log_out, smoothing)
     for h in range(H):
-        n = _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], held[h], pos_var, vel_var,
-                        terms, weight_iterations, work)
+        n = _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], open_cells, inv_cell, pos_var,
+                        vel_var, terms, weight_iterations, work)
         _per_flow(n, work[5], log_in, log_out, out[h])
     return out
 
 
 @numba.njit(cache=True)
-def _velocity_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in,
-                            log_out, weight_iterations, smoothing, log_out_position):
+def _velocity_loglik_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibility, open_cells, inv_cell, pos_var,
+                            vel_var, log_in, log_out, weight_iterations, smoothing, log_out_position):
     """``_flow_loglik_kernel``'s per-flow values less the positions' own mixture under the same weights (module
     docstring); ``log_out_position``: the log outlier density of a position alone."""
     H, P = visibility.shape
     M = flows.shape[1]
     out = np.empty((H, n_flows))
     work = _work(M, P)
-    dens, points, arg, scale, weight, total, _ = work
+    dens, points, arg, scale, weight, total, _, _ = work
     position = np.empty((P, M), dtype=np.float32)
     total_position = np.empty(M, dtype=np.float32)
     joint, given = np.empty(n_flows), np.empty(n_flows)
     terms = _terms(log_in, log_out, smoothing)
     for h in range(H):
-        n = _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], held[h], pos_var, vel_var,
-                        terms, weight_iterations, work)
+        n = _hypothesis(flows, pix[h], pix_cov[h], flow[h], flow_cov[h], visibility[h], open_cells, inv_cell, pos_var,
+                        vel_var, terms, weight_iterations, work)
         _position_densities(flows, pix[h], pix_cov[h], pos_var, points, n, position, arg, scale)
         total_position[:] = _ZERO32
         for i in range(n):
@@ -280,16 +285,16 @@ def _per_flow(n, total, log_in, log_out, out):
 
 
 @numba.njit(cache=True)
-def _responsibilities_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var, log_in,
-                             log_out, weight_iterations, smoothing):
+def _responsibilities_kernel(flows, n_flows, pix, pix_cov, flow, flow_cov, visibility, open_cells, inv_cell, pos_var,
+                             vel_var, log_in, log_out, weight_iterations, smoothing):
     P = visibility.shape[0]
     M = flows.shape[1]
     resp = np.zeros((n_flows, P))
     work = _work(M, P)
-    dens, points, _, _, weight, total, _ = work
+    dens, points, _, _, weight, total, _, _ = work
     p_in = np.exp(log_in)
     p_out = np.exp(log_out)
-    n = _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, held, pos_var, vel_var,
+    n = _hypothesis(flows, pix, pix_cov, flow, flow_cov, visibility, open_cells, inv_cell, pos_var, vel_var,
                     _terms(log_in, log_out, smoothing), weight_iterations, work)
     for i in range(n):
         p = points[i]
@@ -315,50 +320,54 @@ class FlowModel:
     smoothing: float = 0.0
 
 
-def _prepared(flows: np.ndarray, img: ImageDistributions, model: FlowModel, held: np.ndarray | None) -> tuple:
+def _prepared(flows: np.ndarray, img: ImageDistributions, model: FlowModel, open_mask: OpenMask | None) -> tuple:
     """The kernels' arguments: the flows as ``(4, M')`` float32 columns with their number ``M`` (``M'`` rounded up
     to a multiple of ``_LANES`` with flows that are nowhere, NaN: their densities are zero, and the kernels' loops
-    over flows run without remainders, measured 20% faster at 41 flows), the projected distributions, which
-    points are held, and the scalars (observation noise's position and velocity variances, log
-    inlier and outlier terms, EM steps, pseudo-flows)."""
+    over flows run without remainders, measured 20% faster at 41 flows), the projected distributions, the open
+    region's grid and its inverse cell size (an empty grid without one), and the scalars (observation noise's
+    position and velocity variances, log inlier and outlier terms, EM steps, pseudo-flows)."""
     flows = np.ascontiguousarray(flows, dtype=float).reshape(-1, 4)
     max_flow = 0.25 * max(model.width, model.height) * model.fps if model.max_flow is None else model.max_flow
     log_out = np.log(model.outlier_prob) - np.log(model.width * model.height) - np.log(np.pi * max_flow**2)
     log_in = np.log1p(-model.outlier_prob)
     dists = (np.ascontiguousarray(img.pix), np.ascontiguousarray(img.pix_cov), np.ascontiguousarray(img.flow),
              np.ascontiguousarray(img.flow_cov), np.ascontiguousarray(img.visibility, dtype=float))
-    held = np.zeros(img.visibility.shape, dtype=np.bool_) if held is None else np.asarray(held, dtype=np.bool_)
-    if held.shape != img.visibility.shape:          # broadcast_to costs 20 us a call; the frame's own mask fits
-        held = np.broadcast_to(held, img.visibility.shape)
-    held = np.ascontiguousarray(held)
+    # Which points are held is looked up in the kernels, for the visible points only: an (H, P) mask made
+    # beforehand for every point cost as much as a tenth of the weighing's kernel.
+    region = _NO_REGION if open_mask is None else (np.ascontiguousarray(open_mask.open, dtype=np.bool_),
+                                                    1.0 / open_mask.cell)
     scalars = (float(model.noise_px**2), float(2.0 * (model.noise_px * model.fps) ** 2), log_in, log_out,
                int(model.weight_iterations), float(model.smoothing))
     M = len(flows)
     columns = np.full((4, -(-M // _LANES) * _LANES), np.nan, dtype=np.float32)
     columns[:, :M] = flows.T
-    return (columns, M), dists, held, scalars
+    return (columns, M), dists, region, scalars
+
+
+_NO_REGION = (np.zeros((0, 0), dtype=np.bool_), 0.0)    # no point is held
 
 
 def flow_log_likelihoods(flows: np.ndarray, img: ImageDistributions, model: FlowModel,
-                         held: np.ndarray | None = None) -> np.ndarray:
+                         open_mask: OpenMask | None = None) -> np.ndarray:
     """``(H, M)`` log-likelihood of each flow ``(M, 4)`` under each hypothesis (see the module docstring).
 
     Hypotheses with no visible point explain every flow as an outlier. ``model.weight_iterations`` EM steps
     adapt the mixture weights of the model points to the flows (``model.smoothing``: pseudo-flows spread by
-    visibility), except for ``held`` points ``(H, P)`` bool, whose weights keep their prior proportions.
+    visibility), except for the points held by ``open_mask`` (those whose pixel lies in its open region,
+    ``OpenMask.held``), whose weights keep their prior proportions.
     """
-    columns, dists, held, scalars = _prepared(flows, img, model, held)
-    return _flow_loglik_kernel(*columns, *dists, held, *scalars)
+    columns, dists, region, scalars = _prepared(flows, img, model, open_mask)
+    return _flow_loglik_kernel(*columns, *dists, *region, *scalars)
 
 
 def velocity_log_likelihoods(flows: np.ndarray, img: ImageDistributions, model: FlowModel,
-                             held: np.ndarray | None = None) -> np.ndarray:
+                             open_mask: OpenMask | None = None) -> np.ndarray:
     """``(H, M)`` log-likelihood of each flow's velocity given its position (the module docstring):
     ``flow_log_likelihoods`` less the log density of the flow's position under the same mixture weights, gate
     and outlier share (an outlier's position uniform over the image)."""
-    columns, dists, held, scalars = _prepared(flows, img, model, held)
+    columns, dists, region, scalars = _prepared(flows, img, model, open_mask)
     log_out_position = np.log(model.outlier_prob) - np.log(model.width * model.height)
-    return _velocity_loglik_kernel(*columns, *dists, held, *scalars, log_out_position)
+    return _velocity_loglik_kernel(*columns, *dists, *region, *scalars, log_out_position)
 
 
 def tempered(per_flow: np.ndarray, n_eff: float) -> np.ndarray:
@@ -371,9 +380,9 @@ def tempered(per_flow: np.ndarray, n_eff: float) -> np.ndarray:
 
 
 def responsibilities(flows: np.ndarray, img: ImageDistributions, model: FlowModel,
-                     held: np.ndarray | None = None) -> np.ndarray:
+                     open_mask: OpenMask | None = None) -> np.ndarray:
     """For one hypothesis: ``(M, P)`` posterior probability that flow ``m`` comes from model point ``p``
     (rows sum to one minus the flow's outlier probability), under the same gate, visibility and adapted
     weights as ``flow_log_likelihoods`` (the same kernel code)."""
-    columns, dists, held, scalars = _prepared(flows, img, model, held)
-    return _responsibilities_kernel(*columns, *(a[0] for a in dists), held[0], *scalars)
+    columns, dists, region, scalars = _prepared(flows, img, model, open_mask)
+    return _responsibilities_kernel(*columns, *(a[0] for a in dists), *region, *scalars)

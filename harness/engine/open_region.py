@@ -40,13 +40,19 @@ class OpenMask:
 
 @numba.njit(cache=True)
 def _held(pix, open_cells, inv_cell, out):
-    """``out[i]``: whether pixel ``pix[i]`` falls in an open cell (one pass; the weighing asks it of every model
-    point of every hypothesis)."""
-    rows, cols = open_cells.shape
+    """``out[i]``: whether pixel ``pix[i]`` falls in an open cell (``is_open``)."""
     for i in range(len(pix)):
-        u, v = pix[i, 0] * inv_cell, pix[i, 1] * inv_cell
-        inside = (u >= 0.0) & (u < cols) & (v >= 0.0) & (v < rows)     # False for NaN
-        out[i] = open_cells[int(v), int(u)] if inside else False
+        out[i] = is_open(open_cells, inv_cell, pix[i, 0], pix[i, 1])
+
+
+@numba.njit(cache=True)
+def is_open(open_cells, inv_cell, x, y):
+    """Whether pixel ``(x, y)`` falls in an open cell of ``open_cells`` (``OpenMask.open``; ``inv_cell``: one over
+    its cell size). Outside the grid, or not finite: not (an empty grid holds nothing)."""
+    rows, cols = open_cells.shape
+    u, v = x * inv_cell, y * inv_cell
+    inside = (u >= 0.0) & (u < cols) & (v >= 0.0) & (v < rows)     # False for NaN
+    return open_cells[int(v), int(u)] if inside else False
 
 
 class OpenRegion:

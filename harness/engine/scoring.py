@@ -52,7 +52,7 @@ class Scorer:
 
     def per_flow(self, frame: Frame, img: ImageDistributions) -> np.ndarray:
         """``(H, M)`` log-likelihood of each of the frame's flows under each hypothesis."""
-        return flow_log_likelihoods(frame.flows, img, self.flow_model(frame), held=frame.held(img.pix))
+        return flow_log_likelihoods(frame.flows, img, self.flow_model(frame), open_mask=frame.open)
 
     def recognition_per_flow(self, frame: Frame, img: ImageDistributions, pose_given: bool = False) -> np.ndarray:
         """``(H, M)`` what recognition scores of each flow: its velocity given its position
@@ -60,7 +60,7 @@ class Scorer:
         pose, where the positions carry no pose error."""
         if pose_given or not self.config.recognise_velocities:
             return self.per_flow(frame, img)
-        return velocity_log_likelihoods(frame.flows, img, self.flow_model(frame), held=frame.held(img.pix))
+        return velocity_log_likelihoods(frame.flows, img, self.flow_model(frame), open_mask=frame.open)
 
     def frame_log_likelihood(self, frame: Frame, img: ImageDistributions, n_eff: float) -> np.ndarray:
         """``(H,)`` tempered log-likelihood of the frame under each hypothesis (``likelihood.tempered``)."""
@@ -68,7 +68,7 @@ class Scorer:
 
     def responsibilities(self, frame: Frame, img: ImageDistributions) -> np.ndarray:
         """``(M, P)`` soft assignment of the frame's flows to the model points of one hypothesis."""
-        return responsibilities(frame.flows, img, self.flow_model(frame), held=frame.held(img.pix))
+        return responsibilities(frame.flows, img, self.flow_model(frame), open_mask=frame.open)
 
     def recognise(self, frame: Frame, recognizers: list[Recognizer], positions: np.ndarray,
                   quats: np.ndarray, pose_given: bool = False) -> np.ndarray:
