@@ -11,8 +11,8 @@ import numpy as np
 
 
 def normalize(q: np.ndarray) -> np.ndarray:
-    q = np.asarray(q, dtype=float)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    """``q`` divided by its norm over the last axis."""
+    return _row_by_row(_normalized, q, np.shape(q)[-1])
 
 
 def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -117,6 +117,18 @@ def _exp(v, out):
         half = 0.5 * angle
         scale = np.sin(half) / angle if angle > 1e-8 else 0.5 - angle * angle / 48.0
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = np.cos(half), scale * x, scale * y, scale * z
+
+
+@numba.njit(cache=True)
+def _normalized(q, out):
+    """``out[i] = q[i] / |q[i]|``, the squares summed in order from the first (numpy's ``norm`` on a short axis)."""
+    for i in range(len(q)):
+        s = 0.0
+        for k in range(q.shape[1]):
+            s += q[i, k] * q[i, k]
+        n = np.sqrt(s)
+        for k in range(q.shape[1]):
+            out[i, k] = q[i, k] / n
 
 
 def log(q: np.ndarray) -> np.ndarray:

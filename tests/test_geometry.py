@@ -147,3 +147,14 @@ def test_exp_and_log_kernels_against_the_formulas_in_numpy():
     want = 2.0 * np.arctan2(s, p[:, :1]) / s * p[:, 1:]
     np.testing.assert_allclose(g.log(q), want, rtol=1e-14)
     assert g.exp(v.reshape(4, 100, 3)).shape == (4, 100, 4) and g.log(q.reshape(2, 200, 4)).shape == (2, 200, 3)
+
+
+@pytest.mark.parametrize("shape", [(4,), (500, 4), (3, 7, 4), (60, 3)])
+def test_normalize_equals_dividing_by_numpys_norm(rng, shape):
+    """The compiled ``normalize`` gives exactly numpy's ``q / norm(q)`` (the squares summed in the same order), of
+    any leading shape and row length, at scales from 1e-3 to 1e3, and rows of unit norm."""
+    q = rng.normal(size=shape) * 10.0 ** rng.uniform(-3, 3, size=shape[:-1] + (1,))
+    got = g.normalize(q)
+    assert got.shape == q.shape
+    np.testing.assert_array_equal(got, q / np.linalg.norm(q, axis=-1, keepdims=True))
+    np.testing.assert_allclose(np.linalg.norm(got, axis=-1), 1.0, rtol=1e-15)
