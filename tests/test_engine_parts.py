@@ -364,18 +364,21 @@ def test_particle_cloud_estimate_and_motion_model(rng):
                                                                  (500, 1)), atol=1e-12)
 
 
-def test_settled_clouds_equal_the_mode_estimate_written_in_numpy(rng):
-    """``settled`` against its definition in numpy, cloud by cloud: clouds of two orientation modes (one
-    heavier), of ten or fewer particles (every particle a candidate centre) and of many; the heavier mode's mean
-    position and Markley mean, and the whole cloud's spread."""
+@pytest.mark.parametrize("sizes", [(3, 10, 40, 200), (50, 50, 50, 50, 50)])
+def test_settled_clouds_equal_the_mode_estimate_written_in_numpy(rng, sizes):
+    """``settled`` against its definition in numpy, cloud by cloud: clouds of two orientation modes (one of more
+    particles, the other of more weight), of ten or fewer particles (every particle a candidate centre) and of many, of different sizes and
+    of one size (their candidates found together); the heavier mode's mean position and Markley mean, and the
+    whole cloud's spread."""
     clouds = []
-    for n in (3, 10, 40, 200):
+    for n in sizes:
         heavy, light = geometry.exp(rng.normal(0, 1.0, 3)), geometry.exp(rng.normal(0, 1.0, 3))
         k = (2 * n) // 3
         q = np.concatenate([geometry.multiply(geometry.exp(rng.normal(0, 0.1, (k, 3))), heavy),
                             geometry.multiply(geometry.exp(rng.normal(0, 0.1, (n - k, 3))), light)])
         q *= rng.choice([-1.0, 1.0], (n, 1))           # either sign is the same rotation
         lw = rng.normal(0, 1.0, n)
+        lw[k:] += 3.0                                   # the mode of fewer particles holds more weight
         clouds.append(ParticleCloud(rng.normal(0, 1.0, (n, 3)) + [0, 0, 4], q, lw - np.log(np.exp(lw).sum())))
     positions, quats, spreads = settled(clouds)
     for cloud, pos, quat, spread in zip(clouds, positions, quats, spreads):

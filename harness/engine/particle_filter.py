@@ -182,6 +182,9 @@ def _reweighted(log_w, ll, starts, norms):
 MODE_RADIUS = np.deg2rad(45.0)      # a cloud's mode: the particles this close in orientation to its centre
 
 
+_CENTRES = 10      # the heaviest particles ``settled`` tries as a cloud's mode centre
+
+
 def settled(clouds: list[ParticleCloud], mode_radius: float = MODE_RADIUS
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each cloud's pose estimate and spread: ``(J, 3)`` weighted mean positions and ``(J, 4)`` Markley average
@@ -194,14 +197,35 @@ def settled(clouds: list[ParticleCloud], mode_radius: float = MODE_RADIUS
     dozen tracks, numpy's calls per cloud cost more than their arithmetic)."""
     J = len(clouds)
     positions, spreads, moments = np.empty((J, 3)), np.empty((J, 3)), np.empty((J, 4, 4))
-    cos_half = np.cos(0.5 * mode_radius)
-    for j, cloud in enumerate(clouds):
-        w = np.exp(cloud.log_weights)
-        centres = np.argpartition(w, -10)[-10:] if len(w) > 10 else np.arange(len(w))
-        _mode_moments(cloud.positions, cloud.quats, w, centres, cos_half, positions[j], spreads[j], moments[j])
+    sizes = [len(c) for c in clouds]
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    w = np.exp(np.concatenate([c.log_weights for c in clouds]))
+    centres = np.full((J, _CENTRES), -1)
+    if len(set(sizes)) == 1 and sizes[0] > _CENTRES:      # the clouds of one frame share their size
+        centres[:] = np.argpartition(w.reshape(J, sizes[0]), -_CENTRES, axis=1)[:, -_CENTRES:]
+    else:
+        for j, n in enumerate(sizes):
+            own = w[starts[j]:starts[j + 1]]
+            picked = np.argpartition(own, -_CENTRES)[-_CENTRES:] if n > _CENTRES else np.arange(n)
+            centres[j, :len(picked)] = picked
+    _modes_moments(np.concatenate([c.positions for c in clouds]), np.concatenate([c.quats for c in clouds]), w,
+                   starts, centres, np.cos(0.5 * mode_radius), positions, spreads, moments)
     _, vec = np.linalg.eigh(moments)
     quats = vec[:, :, -1]
     return positions, quats * np.where(quats[:, :1] >= 0, 1.0, -1.0), spreads
+
+
+@numba.njit(cache=True)
+def _modes_moments(positions, quats, w, starts, centres, cos_half, mean, spread, moments):
+    """``_mode_moments`` of every cloud, the clouds' particles concatenated (cloud ``j``: rows ``starts[j]`` to
+    ``starts[j + 1]``; its candidate centres ``centres[j]``, indices within it, -1 padding): one call a frame
+    instead of one per track."""
+    for j in range(len(starts) - 1):
+        a, b = starts[j], starts[j + 1]
+        n = 0
+        while n < centres.shape[1] and centres[j, n] >= 0:
+            n += 1
+        _mode_moments(positions[a:b], quats[a:b], w[a:b], centres[j, :n], cos_half, mean[j], spread[j], moments[j])
 
 
 @numba.njit(cache=True)

@@ -219,15 +219,16 @@ class Track:
         return self.recovery is not None and self.recovery.refined and config.guide_fraction > 0
 
     def move(self, frame: Frame, dists: PointDistributions, n: int, noise: ProcessNoise,
-             rng: np.random.Generator, config: TrackerConfig) -> None:
+             rng: np.random.Generator, config: TrackerConfig, recovered_quat: np.ndarray) -> None:
         """Propose ``n`` particles for this frame: the motion model at the belief's base velocity, mixed with
-        proposals around last frame's recovered pose when recovery refined it (``particle_filter.propose``)."""
+        proposals around last frame's recovered pose when recovery refined it (``particle_filter.propose``;
+        ``recovered_quat``: its rotation as a quaternion, ``geometry.from_matrix``, which the caller finds for
+        all guided tracks at once)."""
         v, w = self.base_velocity(dists)
         guide = guide_std = None
         rec = self.recovery
         if self.guided(config):
-            g_pos, g_quat = motion_mean(rec.position[None], geometry.from_matrix(rec.rotation)[None], v, w, frame.dt,
-                                        frame.camera_motion)
+            g_pos, g_quat = motion_mean(rec.position[None], recovered_quat[None], v, w, frame.dt, frame.camera_motion)
             guide = (g_pos[0], g_quat[0])
             guide_std = (0.5 * self.pose_std, config.guide_rotation_std)
         self.cloud = propose(self.cloud, n, noise, rng, base_linear=v, base_angular=w, dt=frame.dt,
