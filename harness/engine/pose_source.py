@@ -243,7 +243,7 @@ class ParticleTracks:
         if guided:      # the recovered rotations' quaternions in one call: a call each cost 40 us of numpy
             quats = geometry.from_matrix(np.array([t.recovery.rotation for t in guided]))
             for track, quat in zip(guided, quats):
-                track.move(frame, dists, n_each, noise, self.rng, cfg, quat)
+                track.move(frame, dists, n_each, noise, self.rng, cfg, recovered_quat=quat)
         free = [t for t in tracks if not t.guided(cfg)]
         if free:
             velocity = [t.base_velocity(dists) for t in free]

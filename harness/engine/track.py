@@ -219,7 +219,7 @@ class Track:
         return self.recovery is not None and self.recovery.refined and config.guide_fraction > 0
 
     def move(self, frame: Frame, dists: PointDistributions, n: int, noise: ProcessNoise,
-             rng: np.random.Generator, config: TrackerConfig, recovered_quat: np.ndarray) -> None:
+             rng: np.random.Generator, config: TrackerConfig, *, recovered_quat: np.ndarray) -> None:
         """Propose ``n`` particles for this frame: the motion model at the belief's base velocity, mixed with
         proposals around last frame's recovered pose when recovery refined it (``particle_filter.propose``;
         ``recovered_quat``: its rotation as a quaternion, ``geometry.from_matrix``, which the caller finds for
