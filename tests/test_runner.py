@@ -291,3 +291,17 @@ def test_swept_repeats_run_per_condition_with_shared_seeds(tmp_path):
     seeds = {(r.condition, r.repeat, r.test_class): r.seed for r in runs}
     assert all(seeds[(0, 0, c)] == seeds[(1, 0, c)] for c in ("walk", "run", "kick"))     # repeat 0: shared
     assert len({seeds[(1, r, "walk")] for r in range(3)}) == 3
+
+
+def test_a_first_evaluation_is_told_that_the_kernels_compile(tmp_path):
+    """``compile_notice`` (printed by ``evaluate``, ``regress`` and ``rebaseline`` unless ``--quiet``): a cache
+    directory without compiled kernels, missing or empty, gives the one-line notice naming it; once numba has
+    written a kernel's index there, nothing."""
+    from harness.evaluation.cli import compile_notice
+
+    missing = tmp_path / "missing"
+    assert "kernels are compiled on first use" in compile_notice(missing) and str(missing) in compile_notice(missing)
+    (tmp_path / "cache" / "engine").mkdir(parents=True)
+    assert compile_notice(tmp_path / "cache") is not None
+    (tmp_path / "cache" / "engine" / "likelihood._densities-62.py311.nbi").write_bytes(b"")
+    assert compile_notice(tmp_path / "cache") is None

@@ -50,12 +50,27 @@ def _check_jobs(args) -> None:
         raise RunError(f"--jobs: must be in [1, {MAX_JOBS}], got {args.jobs}")
 
 
+def compile_notice(cache_dir: str | Path | None = None) -> str | None:
+    """What to tell a user before runs when ``cache_dir`` (default: ``NUMBA_CACHE_DIR``, which ``harness`` sets)
+    holds no compiled kernel yet: each worker compiles the engine's kernels on first use, about a minute in which
+    the progress bar stands still. None once a kernel's index is there. (This file does not name the compiler in
+    lower case: ``harness.kernel_cache_dir`` versions the kernels by the files that do.)"""
+    cache_dir = Path(os.environ["NUMBA_CACHE_DIR"] if cache_dir is None else cache_dir)
+    if cache_dir.is_dir() and next(cache_dir.rglob("*.nbi"), None) is not None:
+        return None
+    return (f"the engine's kernels are compiled on first use, about a minute in each worker, once per version of "
+            f"their sources (kept in {cache_dir})")
+
+
 def _run(scenario, args, limit=None):
     from harness.evaluation.pipeline import run_one
     from harness.evaluation.report import make_report
     from harness.evaluation.runner import run_scenario
 
     _check_jobs(args)
+    notice = None if args.quiet else compile_notice()
+    if notice:
+        print(notice, file=sys.stderr)
     out = Path(args.results) / scenario.name
     rows = run_scenario(scenario, out, run_one, jobs=args.jobs, scheduler=args.scheduler, limit=limit,
                         cache_dir=Path(args.results) / "cache", fresh=args.fresh, progress=not args.quiet)
