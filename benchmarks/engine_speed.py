@@ -300,5 +300,6 @@ def main() -> None:
                       f"{args.reference} / this engine {ratio:.2f}x [{lo:.2f}, {hi:.2f}] (95%, {mine[..., i].size} "
                       f"clip pairs)")
 
+
 if __name__ == "__main__":
     main()

@@ -200,7 +200,7 @@ def settled(clouds: list[ParticleCloud], mode_radius: float = MODE_RADIUS
     sizes = [len(c) for c in clouds]
     starts = np.concatenate([[0], np.cumsum(sizes)])
     w = np.exp(np.concatenate([c.log_weights for c in clouds]))
-    centres = np.full((J, _CENTRES), -1)
+    centres = np.zeros((J, _CENTRES), dtype=np.int64)
     if len(set(sizes)) == 1 and sizes[0] > _CENTRES:      # the clouds of one frame share their size
         centres[:] = np.argpartition(w.reshape(J, sizes[0]), -_CENTRES, axis=1)[:, -_CENTRES:]
     else:
@@ -218,13 +218,11 @@ def settled(clouds: list[ParticleCloud], mode_radius: float = MODE_RADIUS
 @numba.njit(cache=True)
 def _modes_moments(positions, quats, w, starts, centres, cos_half, mean, spread, moments):
     """``_mode_moments`` of every cloud, the clouds' particles concatenated (cloud ``j``: rows ``starts[j]`` to
-    ``starts[j + 1]``; its candidate centres ``centres[j]``, indices within it, -1 padding): one call a frame
-    instead of one per track."""
+    ``starts[j + 1]``; its candidate centres the first ``min(size, centres.shape[1])`` of ``centres[j]``, indices
+    within it): one call a frame instead of one per track."""
     for j in range(len(starts) - 1):
         a, b = starts[j], starts[j + 1]
-        n = 0
-        while n < centres.shape[1] and centres[j, n] >= 0:
-            n += 1
+        n = min(b - a, centres.shape[1])
         _mode_moments(positions[a:b], quats[a:b], w[a:b], centres[j, :n], cos_half, mean[j], spread[j], moments[j])
 
 

@@ -239,12 +239,13 @@ class ParticleTracks:
         n_each = self.share(len(tracks))
         noise = self.process_noise(frame.gravity)
         dists = self.scorer.model.dists
-        guided = [t for t in tracks if t.guided(cfg)]
+        guided, free = [], []
+        for track in tracks:
+            (guided if track.guided(cfg) else free).append(track)
         if guided:      # the recovered rotations' quaternions in one call: a call each cost 40 us of numpy
             quats = geometry.from_matrix(np.array([t.recovery.rotation for t in guided]))
             for track, quat in zip(guided, quats):
                 track.move(frame, dists, n_each, noise, self.rng, cfg, recovered_quat=quat)
-        free = [t for t in tracks if not t.guided(cfg)]
         if free:
             velocity = [t.base_velocity(dists) for t in free]
             clouds = propose_many([t.cloud for t in free], n_each, noise, self.rng,

@@ -184,7 +184,7 @@ class Track:
             rows[p] = np.where(rec.active()[p], rec.posterior[p], 0.0)
             return np.zeros(1), rows.reshape(1, -1)
         joint = np.where(rec.active(), rec.posterior, 0.0)
-        post = self.recognizer.class_posterior
+        post = rec.class_posterior
         order = np.argsort(post)[::-1]
         k = min(max_classes, int(np.searchsorted(np.cumsum(post[order]), mass)) + 1)
         keep = order[:k]
