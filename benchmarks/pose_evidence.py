@@ -151,7 +151,7 @@ def main() -> None:
               f"per alternative: {per_alt}")
         print(f"  smallest margins: " + ", ".join(f"{a} {margin[:, i].min():.1f}" for i, a in enumerate(ALTERNATIVES))
               + f"; runs lost: {', '.join(sub[i]['key'] + ' (' + sub[i]['class'] + ')' for i in np.flatnonzero(~wins))}")
-    print("\nrecognised (final class posterior along the path): truth / twin")
+    print("\nrecognised (final class posterior along the path): truth / twin / upright twin")
     for cond in dict.fromkeys(r["condition"] for r in rows):
         sub = [r for r in rows if r["condition"] == cond]
 
@@ -159,8 +159,9 @@ def main() -> None:
             return f"{100 * np.mean([r['recognised'][path] for r in runs]):.0f}"
 
         per_class = {c: [r for r in sub if r["class"] == c] for c in sorted({r["class"] for r in sub})}
-        print(f"{cond}: {share(sub, 'truth')}% / {share(sub, 'twin')}%; "
-              + ", ".join(f"{c} {share(rs, 'truth')}/{share(rs, 'twin')}%" for c, rs in per_class.items()))
+        print(f"{cond}: {share(sub, 'truth')}% / {share(sub, 'twin')}% / {share(sub, 'twin_upright')}%; "
+              + ", ".join(f"{c} {share(rs, 'truth')}/{share(rs, 'twin')}/{share(rs, 'twin_upright')}%"
+                          for c, rs in per_class.items()))
         misread = np.array([r["truth"] - r["twin"] for r in sub if not r["recognised"]["twin"]])
         if len(misread):
             print(f"  twins misread: {len(misread)}; the truth's evidence minus the twin's there: "
