@@ -2,7 +2,7 @@
 path, which body part's flows hand it the win, and how the base's own motion enters.
 
     MUJOCO_GL=egl python benchmarks/given_pose_losses.py [--scenario scenarios/sim2real.yaml] [--mocap-dir DIR]
-        [--base database given given+features] [--floor 0.2 0.4 ...] [--set KEY=VALUE ...] [--class kick ...]
+        [--base database given given+features given-horizontal] [--floor 0.2 0.4 ...] [--set KEY=VALUE ...] [--class kick ...]
         [--jobs 2]
 
 Every run of the scenario is scored as ``gt_base`` scores it: at the true base pose of every frame, each flow
@@ -16,7 +16,10 @@ where a flow's predicted velocity takes the base's own motion from:
   base velocity set to zero with no variance: the flows then carry only the body's motion relative to its base;
 - ``given+features``: as ``given``, and each state also scores the six base velocity features (base frame) once
   per frame in joint space, with the joint-space method's per-feature outlier share
-  (``MotionDatabase.log_emissions``): the base's travel as class evidence counted once, not once per flow.
+  (``MotionDatabase.log_emissions``): the base's travel as class evidence counted once, not once per flow;
+- ``given-horizontal``: only the base's travel along the floor given (its base-frame forward and sideways
+  velocity, carried as the camera's motion), those two features of every state at zero with no variance; the
+  vertical and angular velocities stay the database's (a jump is its base's vertical motion).
 
 ``--floor S ...``: also ``database`` with every state's base linear velocity variance raised to at least ``S^2``
 (m/s; after training, without refitting), one variant per value. ``--set``: also ``database`` under each of these
@@ -51,7 +54,7 @@ from harness.engine.features import BASE_ANGULAR, BASE_LINEAR, N_FEATURES, motio
 from harness.engine.model import EngineModel
 from harness.engine.recognition import FEATURE_OUTLIER, Recognizer
 
-BASES = ("database", "given", "given+features")
+BASES = ("database", "given", "given+features", "given-horizontal")
 BASE_FEATURES = np.r_[BASE_LINEAR, BASE_ANGULAR]
 
 
@@ -74,12 +77,12 @@ def carried_base(obs, pos: np.ndarray, v: np.ndarray, w: np.ndarray):
     return dataclasses.replace(obs, camera_motion=motion)
 
 
-def without_base_velocity(model, config):
-    """The engine model of the same database (and model points) with every state's base velocity at zero, with
-    no variance."""
+def without_base_velocity(model, config, features=BASE_FEATURES):
+    """The engine model of the same database (and model points) with every state's base velocity (or only
+    ``features`` of it) at zero, with no variance."""
     db = copy.deepcopy(model.db)
-    db.means_[..., BASE_FEATURES] = 0.0
-    db.covars_[..., BASE_FEATURES] = 1e-12
+    db.means_[..., features] = 0.0
+    db.covars_[..., features] = 1e-12
     return EngineModel.build(db, model.body, config.model_points, config.model_seed)
 
 
@@ -145,12 +148,20 @@ def _one(job) -> dict:
     features = np.zeros((len(pos), N_FEATURES))
     features[:, BASE_LINEAR] = in_base_frame(quat, v)
     features[:, BASE_ANGULAR] = in_base_frame(quat, w)
-    bare = without_base_velocity(model, config) if any(b != "database" for b in bases) else None
+    bare = without_base_velocity(model, config) if any(b.startswith("given") for b in bases) else None
     carried = carried_base(obs, pos, v, w)
+    if "given-horizontal" in bases:
+        along_floor = features[:, BASE_LINEAR].copy()
+        along_floor[:, 2] = 0.0
+        v_floor = np.einsum("tij,tj->ti", geometry.to_matrix(quat), along_floor)     # back to the camera frame
+        bare_floor = without_base_velocity(model, config, np.r_[BASE_LINEAR][:2])
+        carried_floor = carried_base(obs, pos, v_floor, np.zeros_like(w))
     row = {"key": run.key, "class": run.test_class, "answers": {}, "demo": (inputs.motion.demo, inputs.motion.label)}
     for base in bases:
         if base == "database":
             ev = class_evidence(model, model.db, config, obs, pos, quat, None)
+        elif base == "given-horizontal":
+            ev = class_evidence(bare_floor, model.db, config, carried_floor, pos, quat, None)
         else:
             ev = class_evidence(bare, model.db, config, carried, pos, quat,
                                 features if base == "given+features" else None)
@@ -164,7 +175,7 @@ def _one(job) -> dict:
         row["answers"][f"database, {item}"] = classes[int(np.argmax(ev))]
     first = row["answers"][bases[0]]
     if first != run.test_class:
-        m, o = (model, obs) if bases[0] == "database" else (bare, carried)
+        m, o = {"database": (model, obs), "given-horizontal": (bare_floor, carried_floor)}.get(bases[0], (bare, carried))
         won = loss_causes.evidence_by_flow(m, config, o, pos, quat, classes.index(first), pose_given=True)
         true = loss_causes.evidence_by_flow(m, config, o, pos, quat, classes.index(run.test_class), pose_given=True)
         segment = np.array([loss_causes.part_of(inputs.body.model.body(int(b)).name) for b in truth.markers.body]
