@@ -2,7 +2,7 @@
 path, which body part's flows hand it the win, and how the base's own motion enters.
 
     MUJOCO_GL=egl python benchmarks/given_pose_losses.py [--scenario scenarios/sim2real.yaml] [--mocap-dir DIR]
-        [--base database given given+features given-horizontal] [--floor 0.2 0.4 ...] [--set KEY=VALUE ...] [--class kick ...]
+        [--base database given given+features given-horizontal given-rotation] [--floor 0.2 0.4 ...] [--set KEY=VALUE ...] [--class kick ...]
         [--jobs 2]
 
 Every run of the scenario is scored as ``gt_base`` scores it: at the true base pose of every frame, each flow
@@ -19,7 +19,8 @@ where a flow's predicted velocity takes the base's own motion from:
   (``MotionDatabase.log_emissions``): the base's travel as class evidence counted once, not once per flow;
 - ``given-horizontal``: only the base's travel along the floor given (its base-frame forward and sideways
   velocity, carried as the camera's motion), those two features of every state at zero with no variance; the
-  vertical and angular velocities stay the database's (a jump is its base's vertical motion).
+  vertical and angular velocities stay the database's (a jump is its base's vertical motion);
+- ``given-rotation``: only the base's angular velocity given, the linear one the database's.
 
 ``--floor S ...``: also ``database`` with every state's base linear velocity variance raised to at least ``S^2``
 (m/s; after training, without refitting), one variant per value. ``--set``: also ``database`` under each of these
@@ -54,7 +55,7 @@ from harness.engine.features import BASE_ANGULAR, BASE_LINEAR, N_FEATURES, motio
 from harness.engine.model import EngineModel
 from harness.engine.recognition import FEATURE_OUTLIER, Recognizer
 
-BASES = ("database", "given", "given+features", "given-horizontal")
+BASES = ("database", "given", "given+features", "given-horizontal", "given-rotation")
 BASE_FEATURES = np.r_[BASE_LINEAR, BASE_ANGULAR]
 
 
@@ -134,6 +135,25 @@ def class_evidence(model, db, config, obs, pos, quat, base_features: np.ndarray 
     return total
 
 
+def scored_as(base: str, model, config, obs, pos, quat, v, w, features):
+    """``(model, observation, base features or None)`` that ``class_evidence`` scores a run with for ``base``
+    (module docstring): the base's motion given in part or whole is carried as the camera's, and the same part
+    of every state's base velocity is zeroed."""
+    if base == "database":
+        return model, obs, None
+    if base == "given-horizontal":
+        along_floor = features[:, BASE_LINEAR].copy()
+        along_floor[:, 2] = 0.0
+        v_floor = np.einsum("tij,tj->ti", geometry.to_matrix(quat), along_floor)     # back to the camera frame
+        return (without_base_velocity(model, config, np.r_[BASE_LINEAR][:2]),
+                carried_base(obs, pos, v_floor, np.zeros_like(w)), None)
+    if base == "given-rotation":
+        return (without_base_velocity(model, config, np.r_[BASE_ANGULAR]),
+                carried_base(obs, pos, np.zeros_like(v), w), None)
+    return (without_base_velocity(model, config), carried_base(obs, pos, v, w),
+            features if base == "given+features" else None)
+
+
 def _one(job) -> dict:
     run, bases, floors, settings = job
     from harness.engine.config import settings_from_strings
@@ -148,24 +168,10 @@ def _one(job) -> dict:
     features = np.zeros((len(pos), N_FEATURES))
     features[:, BASE_LINEAR] = in_base_frame(quat, v)
     features[:, BASE_ANGULAR] = in_base_frame(quat, w)
-    bare = without_base_velocity(model, config) if any(b.startswith("given") for b in bases) else None
-    carried = carried_base(obs, pos, v, w)
-    if "given-horizontal" in bases:
-        along_floor = features[:, BASE_LINEAR].copy()
-        along_floor[:, 2] = 0.0
-        v_floor = np.einsum("tij,tj->ti", geometry.to_matrix(quat), along_floor)     # back to the camera frame
-        bare_floor = without_base_velocity(model, config, np.r_[BASE_LINEAR][:2])
-        carried_floor = carried_base(obs, pos, v_floor, np.zeros_like(w))
     row = {"key": run.key, "class": run.test_class, "answers": {}, "demo": (inputs.motion.demo, inputs.motion.label)}
-    for base in bases:
-        if base == "database":
-            ev = class_evidence(model, model.db, config, obs, pos, quat, None)
-        elif base == "given-horizontal":
-            ev = class_evidence(bare_floor, model.db, config, carried_floor, pos, quat, None)
-        else:
-            ev = class_evidence(bare, model.db, config, carried, pos, quat,
-                                features if base == "given+features" else None)
-        row["answers"][base] = classes[int(np.argmax(ev))]
+    scored = {base: scored_as(base, model, config, obs, pos, quat, v, w, features) for base in bases}
+    for base, (m, o, extra) in scored.items():
+        row["answers"][base] = classes[int(np.argmax(class_evidence(m, model.db, config, o, pos, quat, extra)))]
     for speed in floors:
         ev = class_evidence(with_floor(model, config, speed), model.db, config, obs, pos, quat, None)
         row["answers"][f"database, floor {speed:g} m/s"] = classes[int(np.argmax(ev))]
@@ -175,7 +181,7 @@ def _one(job) -> dict:
         row["answers"][f"database, {item}"] = classes[int(np.argmax(ev))]
     first = row["answers"][bases[0]]
     if first != run.test_class:
-        m, o = {"database": (model, obs), "given-horizontal": (bare_floor, carried_floor)}.get(bases[0], (bare, carried))
+        m, o, _ = scored[bases[0]]
         won = loss_causes.evidence_by_flow(m, config, o, pos, quat, classes.index(first), pose_given=True)
         true = loss_causes.evidence_by_flow(m, config, o, pos, quat, classes.index(run.test_class), pose_given=True)
         segment = np.array([loss_causes.part_of(inputs.body.model.body(int(b)).name) for b in truth.markers.body]
