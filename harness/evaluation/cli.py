@@ -1,4 +1,5 @@
-"""Commands: ``evaluate``, ``report``, ``regress``, ``rebaseline`` (registered with ``harness.cli.command``)."""
+"""Commands: ``evaluate``, ``report``, ``compare``, ``regress``, ``rebaseline`` (registered with
+``harness.cli.command``)."""
 
 from __future__ import annotations
 
@@ -105,6 +106,26 @@ def _report(args: argparse.Namespace) -> int:
         raise ResultsError(f"{out / 'runs.jsonl'}: no runs yet (run `harness evaluate {args.scenario}`)")
     check(out, Path(args.results) / "cache")
     print(make_report(scenario, out))
+    return 0
+
+
+def _compare_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("before", help="results of the first evaluation (A): a scenario's directory, or a results root")
+    p.add_argument("after", help="results of the second evaluation (B) of the same scenario")
+    p.add_argument("--out", default=None, metavar="FILE", help="also write the table as CSV")
+
+
+@command("compare", _compare_args)
+def _compare(args: argparse.Namespace) -> int:
+    """Compare two evaluations of the same runs, run by run: fixed and lost runs, paired differences."""
+    from harness.evaluation.compare import compare, format_comparison, load_evaluation
+    from harness.io import check_output_file, write_text_atomic
+
+    out = None if args.out is None else check_output_file(args.out)
+    table = compare(load_evaluation(args.before), load_evaluation(args.after))
+    print(format_comparison(table))
+    if out is not None:
+        write_text_atomic(out, table.to_csv(index=False))
     return 0
 
 
