@@ -11,8 +11,9 @@ same path turned by +90, 180 and -90 degrees about the body's vertical, and its 
 runs in which the truth beats every alternative and the smallest margins. This is what the engine's tracks
 rest on: when the truth does not win here, no tracking can choose it. Then, per class, the share of runs
 recognised correctly (the final class posterior of the same recursions, ``scoring.path_recognition``) along the
-true path and along its exact twin: a both-handed database (``database.mirrored``) should recognise the twin's
-mirrored body as well as the truth. ``--seed`` replaces the scenario's seed
+true path, along its exact twin and along its upright twin: a both-handed database (``database.mirrored``)
+should recognise the twin's mirrored body as well as the truth (the upright twin, reflected through the vertical
+plane instead of the camera's, is not the image's twin under an elevated camera). ``--seed`` replaces the scenario's seed
 (development seeds for choices, the scenario's own for reporting).
 
 Then the causal chooser (``causal_choice``): with the true path and its alternatives known exactly, the heading
