@@ -48,6 +48,20 @@ def test_runs_pair_by_key_not_by_order():
     assert pooled["fixed"] == pooled["lost"] == 0
 
 
+def test_scenarios_pool_condition_by_condition_and_still_pair_within_their_own():
+    """Two seed copies of one scenario share run keys: pooled, each run still meets its own counterpart."""
+    a1, a2 = _runs([1, 1], [10.0, 20.0]), _runs([0, 0], [30.0, 40.0], seeds=[5, 6])
+    a2["scenario"] = "demo2"
+    b1, b2 = a1.assign(heading_err_deg=[11.0, 21.0]), a2.assign(heading_err_deg=[33.0, 43.0], correct=[1, 0])
+    table = compare(pd.concat([a1, a2]), pd.concat([b1, b2]), pool_scenarios=True)
+    assert set(table["scenario"]) == {"2 scenarios"}
+    pooled = table[table["condition"] == POOLED].iloc[0]
+    assert pooled["runs"] == 4 and pooled["fixed"] == 1 and pooled["lost"] == 0
+    assert pooled["heading_err_deg_diff"] == pytest.approx(2.0)
+    c0 = table[table["condition"] == "c0"].iloc[0]
+    assert c0["runs"] == 2 and c0["heading_err_deg_diff"] == pytest.approx(2.0)   # 1 and 3
+
+
 def test_a_method_that_does_not_recognise_has_no_accuracy():
     a = _runs([np.nan] * 4, [1.0, 2.0, 3.0, 4.0], method="no_database")
     row = compare(a, a).iloc[0]

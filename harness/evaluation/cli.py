@@ -113,6 +113,8 @@ def _compare_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("before", help="results of the first evaluation (A): a scenario's directory, or a results root")
     p.add_argument("after", help="results of the second evaluation (B) of the same scenario")
     p.add_argument("--out", default=None, metavar="FILE", help="also write the table as CSV")
+    p.add_argument("--pool-scenarios", action="store_true",
+                   help="the scenarios' runs together, condition by condition (copies of a scenario with other seeds)")
 
 
 @command("compare", _compare_args)
@@ -122,7 +124,7 @@ def _compare(args: argparse.Namespace) -> int:
     from harness.io import check_output_file, write_text_atomic
 
     out = None if args.out is None else check_output_file(args.out)
-    table = compare(load_evaluation(args.before), load_evaluation(args.after))
+    table = compare(load_evaluation(args.before), load_evaluation(args.after), args.pool_scenarios)
     print(format_comparison(table))
     if out is not None:
         write_text_atomic(out, table.to_csv(index=False))

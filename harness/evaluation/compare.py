@@ -88,10 +88,15 @@ def _row(scenario: str, condition: str, method: str, g: pd.DataFrame) -> dict:
     return row
 
 
-def compare(a: pd.DataFrame, b: pd.DataFrame) -> pd.DataFrame:
+def compare(a: pd.DataFrame, b: pd.DataFrame, pool_scenarios: bool = False) -> pd.DataFrame:
     """One row per scenario, condition and method, and per scenario and method over all its conditions
-    (condition ``POOLED``): the module docstring's numbers (B against A)."""
+    (condition ``POOLED``): the module docstring's numbers (B against A). ``pool_scenarios``: the scenarios'
+    runs together, condition by condition (copies of one scenario with other seeds, for instance; the runs still
+    pair within their own scenario)."""
     joined = paired_runs(a, b)
+    if pool_scenarios:
+        names = joined["scenario"].unique()
+        joined["scenario"] = f"{len(names)} scenarios" if len(names) > 1 else names[0]
     out = []
     for (scenario, method), g in joined.groupby(["scenario", "method"], sort=False):
         conditions = list(g.groupby("condition", sort=False))
