@@ -66,6 +66,8 @@ def test_a_method_that_does_not_recognise_has_no_accuracy():
     a = _runs([np.nan] * 4, [1.0, 2.0, 3.0, 4.0], method="no_database")
     row = compare(a, a).iloc[0]
     assert pd.isna(row.get("accuracy_a")) and row["heading_err_deg_diff"] == 0.0
+    bare = a.drop(columns="correct")          # an evaluation of such methods alone has no column at all
+    assert "accuracy_a" not in compare(bare, bare)
 
 
 def test_other_seeds_or_no_common_run_are_refused():

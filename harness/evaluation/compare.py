@@ -54,6 +54,8 @@ def paired_runs(a: pd.DataFrame, b: pd.DataFrame) -> pd.DataFrame:
     joined = a.merge(b, on=KEY, suffixes=("_a", "_b"))
     if joined.empty:
         raise ResultsError("the two evaluations share no run (compare evaluations of the same scenario)")
+    if "seed_a" not in joined or "seed_b" not in joined:
+        raise ResultsError("the runs carry no seed column: cannot tell that they are the same runs")
     other = joined["seed_a"] != joined["seed_b"]
     if other.any():
         first = joined.loc[other.idxmax()]
@@ -69,14 +71,15 @@ def _numbers(s: pd.Series) -> np.ndarray:
 
 def _row(scenario: str, condition: str, method: str, g: pd.DataFrame) -> dict:
     row = {"scenario": scenario, "condition": condition, "method": method, "runs": len(g)}
-    correct_a, correct_b = _numbers(g["correct_a"]), _numbers(g["correct_b"])
+    recognises = "correct_a" in g and "correct_b" in g
+    correct_a, correct_b = (_numbers(g["correct_a"]), _numbers(g["correct_b"])) if recognises else (np.nan, np.nan)
     both = np.isfinite(correct_a) & np.isfinite(correct_b)
-    if both.any():
+    if np.any(both):
         test = mcnemar_exact(correct_a[both], correct_b[both])
         row.update({"accuracy_a": correct_a[both].mean(), "accuracy_b": correct_b[both].mean(),
                     "fixed": test["b_only"], "lost": test["a_only"], "mcnemar_p": test["p_value"]})
     for metric in PAIRED_METRICS:
-        if f"{metric}_a" not in g:
+        if f"{metric}_a" not in g or f"{metric}_b" not in g:
             continue
         x, y = _numbers(g[f"{metric}_a"]), _numbers(g[f"{metric}_b"])
         keep = np.isfinite(x) & np.isfinite(y)
