@@ -24,6 +24,7 @@ import pandas as pd
 
 from harness.evaluation.journal import ResultsError
 from harness.evaluation.stats import mcnemar_exact
+from harness.evaluation.tables import markdown
 
 KEY = ["scenario", "condition", "run_key", "method"]
 PAIRED_METRICS = ("heading_err_deg", "base_pos_err_m", "mpjpe_cam_mm", "frame_accuracy")
@@ -71,13 +72,13 @@ def _numbers(s: pd.Series) -> np.ndarray:
 
 def _row(scenario: str, condition: str, method: str, g: pd.DataFrame) -> dict:
     row = {"scenario": scenario, "condition": condition, "method": method, "runs": len(g)}
-    recognises = "correct_a" in g and "correct_b" in g
-    correct_a, correct_b = (_numbers(g["correct_a"]), _numbers(g["correct_b"])) if recognises else (np.nan, np.nan)
-    both = np.isfinite(correct_a) & np.isfinite(correct_b)
-    if np.any(both):
-        test = mcnemar_exact(correct_a[both], correct_b[both])
-        row.update({"accuracy_a": correct_a[both].mean(), "accuracy_b": correct_b[both].mean(),
-                    "fixed": test["b_only"], "lost": test["a_only"], "mcnemar_p": test["p_value"]})
+    if "correct_a" in g and "correct_b" in g:       # methods that recognise
+        correct_a, correct_b = _numbers(g["correct_a"]), _numbers(g["correct_b"])
+        both = np.isfinite(correct_a) & np.isfinite(correct_b)
+        if both.any():
+            test = mcnemar_exact(correct_a[both], correct_b[both])
+            row.update({"accuracy_a": correct_a[both].mean(), "accuracy_b": correct_b[both].mean(),
+                        "fixed": test["b_only"], "lost": test["a_only"], "mcnemar_p": test["p_value"]})
     for metric in PAIRED_METRICS:
         if f"{metric}_a" not in g or f"{metric}_b" not in g:
             continue
@@ -111,20 +112,19 @@ def compare(a: pd.DataFrame, b: pd.DataFrame, pool_scenarios: bool = False) -> p
 
 
 def format_comparison(table: pd.DataFrame) -> str:
-    """The comparison as a Markdown table: accuracy A -> B (fixed / lost, McNemar p), and each paired metric's
-    means A -> B (mean difference ± standard error)."""
+    """The comparison as a Markdown table (``tables.markdown``): accuracy A -> B (fixed / lost, McNemar p), and
+    each paired metric's means A -> B (mean difference ± standard error)."""
     metrics = [m for m in PAIRED_METRICS if f"{m}_diff" in table]
-    head = ["scenario", "condition", "method", "runs", "recognition A -> B (fixed / lost, p)", *metrics]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    recognition = "recognition A -> B (fixed / lost, p)"
+    cells = []
     for _, r in table.iterrows():
-        cells = [str(r["scenario"]), str(r["condition"]), str(r["method"]), str(r["runs"])]
-        if "accuracy_a" in r and pd.notna(r["accuracy_a"]):
-            cells.append(f"{100 * r['accuracy_a']:.1f} -> {100 * r['accuracy_b']:.1f}% "
-                         f"({int(r['fixed'])} / {int(r['lost'])}, p = {r['mcnemar_p']:.2g})")
-        else:
-            cells.append("")
+        row = {"scenario": r["scenario"], "condition": r["condition"], "method": r["method"], "runs": r["runs"],
+               recognition: ""}
+        if pd.notna(r.get("accuracy_a")):
+            row[recognition] = (f"{100 * r['accuracy_a']:.1f} -> {100 * r['accuracy_b']:.1f}% "
+                                f"({int(r['fixed'])} / {int(r['lost'])}, p = {r['mcnemar_p']:.2g})")
         for m in metrics:
-            cells.append("" if pd.isna(r.get(f"{m}_diff")) else
-                         f"{r[f'{m}_a']:.3g} -> {r[f'{m}_b']:.3g} ({r[f'{m}_diff']:+.3g} ± {r[f'{m}_se']:.2g})")
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+            row[m] = ("" if pd.isna(r.get(f"{m}_diff")) else
+                      f"{r[f'{m}_a']:.3g} -> {r[f'{m}_b']:.3g} ({r[f'{m}_diff']:+.3g} ± {r[f'{m}_se']:.2g})")
+        cells.append(row)
+    return markdown(pd.DataFrame(cells)).rstrip("\n")
