@@ -1,15 +1,16 @@
 """How the database's training rule biases recognition on real captures: joint-space recognition (the
 ``joint_space`` method, exactly) under alternative rules, on the capture scenarios' own splits.
 
-Run: ``python benchmarks/database_rules.py [DIR] [--rules A,B] [--outliers E,F] [--scenarios S,T]`` (DIR defaults to
-``../shared/mocap/cmu``). For every run of ``scenarios/sim2real.yaml``, ``sim2real_mixed.yaml`` and both conditions
+Run: ``python benchmarks/database_rules.py [DIR] [--rules A,B] [--outliers E,F] [--states K ...]
+[--scenarios S,T]`` (DIR defaults to ``../shared/mocap/cmu``). For every run of ``scenarios/sim2real.yaml``, ``sim2real_mixed.yaml`` and both conditions
 of ``mocap.yaml`` (leave-one-out, cross-subject), the database is trained on what the pipeline trains it on
 (``pipeline.training_motions``) under each rule, and the test capture is recognised from its true joint-space
 features. Accuracy over all runs, then over the development demonstrations (the performer's calibration
 demonstrations, ``realism.calibration_split``: what settings are chosen on) and the report demonstrations
 apart; per class; and the classes answered for wrong ones. ``--outliers``: the emissions' per-feature outlier
 shares to compare (``MotionDatabase.log_emissions``; 0 is the plain Gaussian, the default is the method's),
-each scored over the capture's measured features as the method does.
+each scored over the capture's measured features as the method does. ``--states``: the HMM states per
+primitive (a side) to compare (default the database's 20).
 
 Rules (``RULES``): ``group`` (the feature groups' floors alone, as before issue 24), ``human`` (the human floor
 at ``FLOOR_SCALE``, the default), ``human<s>`` (at scale ``s``), ``human-rates`` (the human floor on the rates and the base's velocities only), ``balanced`` (the human floor, and every class
@@ -21,6 +22,7 @@ leave-one-out database costs about one class's fit.
 """
 
 import argparse
+import itertools
 import sys
 import time
 from collections import Counter, defaultdict
@@ -31,6 +33,7 @@ from scipy.optimize import minimize
 from scipy.special import log_softmax
 
 from harness.engine import MotionDatabase, motion_features, recognize_features
+from harness.engine.database import DEFAULT_STATES
 from harness.engine.features import ANGLES, measured_features
 from harness.engine.recognition import FEATURE_OUTLIER
 from harness.engine.variance_floor import FLOOR_SCALE, HUMAN_FLOOR_PATH, group_floor, read_human_floor
@@ -83,7 +86,8 @@ RULES = {"group": (group_floor, None), "human": (lambda: floor_at(FLOOR_SCALE), 
 class Databases:
     """Databases of a rule from one-class fits, each made once."""
 
-    def __init__(self, rule: str):
+    def __init__(self, rule: str, n_states: int = DEFAULT_STATES):
+        self.n_states = n_states
         self.floor, self.select = RULES[rule.removeprefix("offset-")]
         self.floor = self.floor()
         self.fits = {}
@@ -99,7 +103,8 @@ class Databases:
             key = (label, tuple(sorted(str(training_identity(m)) for m in own)),
                    tuple(sorted(str(training_identity(m)) for m in training)) if unmeasured else ())
             if key not in self.fits:
-                self.fits[key] = MotionDatabase(cyclic=CYCLIC, floor=self.floor).fit(own, population=training)
+                self.fits[key] = MotionDatabase(self.n_states, cyclic=CYCLIC, floor=self.floor).fit(
+                    own, population=training)
             parts.append(self.fits[key])
         return stack(parts)
 
@@ -141,8 +146,9 @@ def scenario(name: str, capture_dir: str):
 
 
 def evaluate(scenario_name: str, rule: str, capture_dir: str, development: set[str],
-             outliers: tuple[float, ...] = (FEATURE_OUTLIER,)) -> dict[float, list[dict]]:
-    dbs = Databases(rule)
+             outliers: tuple[float, ...] = (FEATURE_OUTLIER,), n_states: int = DEFAULT_STATES
+             ) -> dict[float, list[dict]]:
+    dbs = Databases(rule, n_states)
     rows = {eps: [] for eps in outliers}
     for run in plan(scenario(scenario_name, capture_dir), "/nonexistent"):
         motion = test_motion(run)
@@ -183,20 +189,22 @@ def main() -> int:
                         + ", offset-group, offset-human")
     parser.add_argument("--outliers", default=str(FEATURE_OUTLIER),
                         help="comma-separated per-feature outlier shares of the emissions (0: plain Gaussian)")
+    parser.add_argument("--states", type=int, nargs="+", default=[DEFAULT_STATES],
+                        help="HMM states per primitive (per side) to compare")
     parser.add_argument("--scenarios", default="sim2real,mixed,mocap", help="of: " + ", ".join(SCENARIOS))
     args = parser.parse_args()
     # The capture scenario's training set without a test motion is every capture (retargeted once, cached).
     captures = training_motions(scenario("mocap", args.directory), None)
     development = {m.demo + m.label for m in calibration_split(captures)[0]}
     outliers = tuple(float(x) for x in args.outliers.split(","))
-    for rule in args.rules.split(","):
+    for rule, states in itertools.product(args.rules.split(","), args.states):
         for name in args.scenarios.split(","):
             if rule.startswith("offset-") and name != "sim2real":
                 continue
             t0 = time.perf_counter()
-            for eps, rows in evaluate(name, rule, args.directory, development, outliers).items():
+            for eps, rows in evaluate(name, rule, args.directory, development, outliers, states).items():
                 for cond in dict.fromkeys(r["condition"] for r in rows):
-                    print(f"{rule:10} {eps:<5g} {cond:28} "
+                    print(f"{rule:10} K={states:<3} {eps:<5g} {cond:28} "
                           f"{summary([r for r in rows if r['condition'] == cond])}")
             print(f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
     return 0
