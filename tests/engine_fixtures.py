@@ -59,15 +59,18 @@ def synthetic_demos(body, label, n, rng, fps=30.0, seconds=2.0):
     return out
 
 
-def synthetic_observation(body, motion, rng, n_markers=100, noise_px=1.0, distance=4.0, heading=None):
-    """Flows of facing markers seen by a level camera ``distance`` m from the subject's mean position.
+def synthetic_observation(body, motion, rng, n_markers=100, noise_px=1.0, distance=4.0, heading=None,
+                          elevation_deg=0.0):
+    """Flows of facing markers seen by a camera ``distance`` m from a point 1 m above the subject's mean
+    position on the floor, looking at it from ``elevation_deg`` above the horizontal (level by default).
 
     Returns (Observation, base position (T, 3) and quaternion (T, 4) in the camera frame)."""
     intr = Intrinsics.from_fov(45.0, 640, 480)
     heading = rng.uniform(-np.pi, np.pi) if heading is None else heading
     markers = sample_surface(body, n_markers, rng)
     # Camera frame from a body-relative placement: the body's world pose composed with a fixed camera pose.
-    cam_from_world = geometry.to_matrix(upright_orientations(np.array([heading]), camera_pitch(0.0)))[0]
+    cam_from_world = geometry.to_matrix(upright_orientations(np.array([heading]),
+                                                            camera_pitch(np.deg2rad(elevation_deg))))[0]
     centre = motion.base_pos.mean(axis=0) * np.array([1, 1, 0]) + np.array([0, 0, 1.0])
     world = forward_points(body, motion.qpos, markers.body, markers.local)
     normals = forward_points(body, motion.qpos, markers.body, markers.local + markers.normal) - world

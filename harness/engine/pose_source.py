@@ -173,9 +173,8 @@ class ParticleTracks:
                              world_from_camera=cameras, body_extent=model.body_extent,
                              band=cfg.init_depth_band)
         prior = self._belief.posterior
-        blob = self.scorer.image(frame, geometry.to_matrix(wide.quats), wide.positions,
-                                 model.dists.mixture(prior.ravel()))
-        coarse = self.scorer.frame_log_likelihood(frame, blob, cfg.n_eff_filter)
+        coarse = self.scorer.pose_log_likelihood(frame, wide.quats, wide.positions, model.dists.mixture(prior.ravel()),
+                                                 n_eff=cfg.n_eff_filter)
         wide = wide.take(np.argsort(coarse)[::-1][:int(round(cfg.init_keep * n_wide))])
         return wide, self.class_log_likelihoods(frame, wide, prior), np.log(prior.sum(axis=1))
 
@@ -187,9 +186,9 @@ class ParticleTracks:
         C, K = model.n_classes, model.n_states
         mixes = model.dists.mixtures(np.einsum("ck,cd->cdk", prior, np.eye(C)).reshape(C, C * K))
         n = len(cloud)
-        img = self.scorer.image(frame, np.tile(geometry.to_matrix(cloud.quats), (C, 1, 1)),
-                                np.tile(cloud.positions, (C, 1)), mixes, np.repeat(np.arange(C), n))
-        return self.scorer.frame_log_likelihood(frame, img, self.scorer.config.n_eff_filter).reshape(C, n)
+        return self.scorer.pose_log_likelihood(frame, np.tile(cloud.quats, (C, 1)), np.tile(cloud.positions, (C, 1)),
+                                               mixes, np.repeat(np.arange(C), n),
+                                               n_eff=self.scorer.config.n_eff_filter).reshape(C, n)
 
     def spawn(self, wide: ParticleCloud, gravity: np.ndarray | None, *, primitive: int | None = None,
               n_each: int | None = None) -> list[Track]:
@@ -264,10 +263,7 @@ class ParticleTracks:
         mixes = self.scorer.model.dists.mixtures(np.concatenate([rows for _, rows in mixtures]))
         pos = np.concatenate([t.cloud.positions for t in tracks])[pose_index]
         quat = np.concatenate([t.cloud.quats for t in tracks])[pose_index]
-        img = self.scorer.image(frame, geometry.to_matrix(quat), pos, mixes, state_index)
-        ll = self.scorer.frame_log_likelihood(frame, img, cfg.n_eff_filter)
-        if frame.camera_height is not None:
-            ll = ll + self.scorer.floor_log_prior(frame, mixes.pos[state_index], quat, pos)
+        ll = self.scorer.pose_log_likelihood(frame, quat, pos, mixes, state_index, n_eff=cfg.n_eff_filter)
         out, at = [], 0
         for (log_w, _), track in zip(mixtures, tracks):
             n, k = len(track.cloud), len(log_w)
@@ -378,9 +374,9 @@ def screen(scorer: Scorer, frames: dict[int, Frame], histories: list, alternativ
         pos = np.array([owners[i].pose[0] for i in members])
         quat = np.array([owners[i].pose[1] for i in members])
         moved = [alt.apply(pos, quat, frame.gravity) for alt in alternatives]     # member-major below
-        img = scorer.image(frame, geometry.to_matrix(np.stack([q for _, q in moved], axis=1).reshape(-1, 4)),
-                           np.stack([p for p, _ in moved], axis=1).reshape(-1, 3), blobs, np.repeat(members, A))
-        ll = scorer.frame_log_likelihood(frame, img, cfg.n_eff_recognition).reshape(len(members), A)
+        ll = scorer.pose_log_likelihood(frame, np.stack([q for _, q in moved], axis=1).reshape(-1, 4),
+                                        np.stack([p for p, _ in moved], axis=1).reshape(-1, 3), blobs,
+                                        np.repeat(members, A), n_eff=cfg.n_eff_recognition).reshape(len(members), A)
         for i, row in zip(members, ll):
             scored[id(owners[i])][1][:] = row
     known |= scored

@@ -3,7 +3,8 @@
 ``Scorer`` binds the engine's model (database, body, model points) to its settings, so that a stage asks one
 question of one frame: project these distributions at these poses (with the body's self-occlusion and the
 camera's own motion), score the flows under them (with the open region's held points: negative evidence),
-temper a frame's sum, or fold a frame into a recognizer at a pose. ``path_recognition`` is what a track that
+temper a frame's sum, weigh base poses (the tempered sum and the known floor, ``pose_log_likelihood``), or fold
+a frame into a recognizer at a pose. ``path_recognition`` is what a track that
 followed a given pose path would gather (its evidence, ``path_evidence``, and its class posteriors);
 ``path_class_evidence`` the same per primitive; ``floor_log_prior`` the camera prior's floor term.
 """
@@ -66,6 +67,18 @@ class Scorer:
         """``(H,)`` tempered log-likelihood of the frame under each hypothesis (``likelihood.tempered``)."""
         return tempered(self.per_flow(frame, img), n_eff)
 
+    def pose_log_likelihood(self, frame: Frame, quats: np.ndarray, positions: np.ndarray, dists: PointDistributions,
+                            state_index: np.ndarray | None = None, *, n_eff: float) -> np.ndarray:
+        """``(H,)`` what a base pose hypothesis is weighed by: the frame's tempered log-likelihood at base poses
+        ``quats (H, 4)``, ``positions (H, 3)`` under ``dists`` (pairing as ``image``, one pose per hypothesis),
+        plus the camera prior's floor term where the camera knows its height (``floor_log_prior``): every
+        weighing of poses, the first frame's included, so that a known floor places the body from the start."""
+        img = self.image(frame, geometry.to_matrix(quats), positions, dists, state_index)
+        ll = self.frame_log_likelihood(frame, img, n_eff)
+        if frame.camera_height is None:
+            return ll
+        return ll + self.floor_log_prior(frame, _hypothesis_points(dists, state_index, len(ll)), quats, positions)
+
     def responsibilities(self, frame: Frame, img: ImageDistributions) -> np.ndarray:
         """``(M, P)`` soft assignment of the frame's flows to the model points of one hypothesis."""
         return responsibilities(frame.flows, img, self.flow_model(frame), open_mask=frame.open)
@@ -99,6 +112,14 @@ class Scorer:
         if frame.camera_height is None:
             return np.zeros(len(positions))
         return floor_log_prior(points, quats, positions, -frame.gravity, frame.camera_height, self.config)
+
+
+def _hypothesis_points(dists: PointDistributions, state_index: np.ndarray | None, n: int) -> np.ndarray:
+    """``(n, P, 3)`` the model points' mean positions (base frame) of each of ``n`` hypotheses paired with the
+    states of ``dists`` as ``to_image`` pairs them (one pose per hypothesis)."""
+    if state_index is not None:
+        return dists.pos[state_index]
+    return np.broadcast_to(dists.pos, (n, *dists.pos.shape[1:])) if len(dists.pos) == 1 else dists.pos
 
 
 def floor_log_prior(points: np.ndarray, quats: np.ndarray, positions: np.ndarray, up: np.ndarray,
