@@ -72,10 +72,11 @@ class TrackerConfig:
                                              # 72% against 75%, base 0.54 against 0.49 m on 60 development runs:
                                              # a belief's wrong base velocity, a walk for a run, must be caught up)
     rotation_noise: float = 0.3              # rad / sqrt(s), of the base orientation (yaw when gravity is known)
-    tilt_noise: float = 0.15                 # rad / sqrt(s), of the tilt when gravity is known (0.05 could not follow
-                                             # the pelvis's own lean: with gravity and with the floor, 480 development
-                                             # runs, seeds 124-125 at 10 and 40 deg, full_smoothed 22 fixed / 5 lost,
-                                             # heading +0.9 deg on balance; docs/engine.md, "Camera prior")
+    tilt_noise: float = 0.15                 # rad / sqrt(s), of the tilt when gravity is known
+                                             # (0.05 could not follow the pelvis's own lean: with gravity and with the
+                                             # floor, 480 development runs, seeds 124-125 at 10 and 40 deg,
+                                             # full_smoothed 22 fixed / 5 lost, heading +0.9 deg on balance;
+                                             # docs/engine.md, "Camera prior")
     floor_std: float = 0.05                  # m: the lowest body point's height about a known floor ...
     floor_flight: float = 0.2                # ... or, with this probability, in flight ...
     floor_flight_height: float = 0.8         # ... up to this height (m)
