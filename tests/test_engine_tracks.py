@@ -213,6 +213,27 @@ def test_floor_prior_prefers_feet_on_the_floor():
     assert lp[0] == pytest.approx(expect)
 
 
+def test_floor_prior_at_any_orientation_against_a_loop_over_hypotheses(rng):
+    """The floor term at random base poses against the lowest point found one hypothesis at a time with
+    scipy's rotations (wxyz quaternions reordered to scipy's xyzw), the density written out."""
+    from scipy.spatial.transform import Rotation
+
+    H, P = 7, 5
+    points = rng.normal(0.0, 0.5, (H, P, 3))
+    quats = rng.normal(size=(H, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    positions = rng.normal(0.0, 0.5, (H, 3)) + [0.0, 0.0, 4.0]
+    up = np.array([0.0, -np.cos(0.3), -np.sin(0.3)])
+    cfg = TrackerConfig()
+    got = floor_log_prior(points, quats, positions, up, 1.2, cfg)
+    for n in range(H):
+        world = Rotation.from_quat(quats[n, [1, 2, 3, 0]]).apply(points[n]) + positions[n]
+        h = 1.2 + (world @ up).min()
+        flight = cfg.floor_flight / cfg.floor_flight_height if 0.0 <= h <= cfg.floor_flight_height else 0.0
+        ground = (1 - cfg.floor_flight) * np.exp(-0.5 * (h / cfg.floor_std) ** 2) / (np.sqrt(2 * np.pi) * cfg.floor_std)
+        assert got[n] == pytest.approx(np.log(ground + flight), rel=1e-12, abs=1e-12)
+
+
 def test_a_malformed_camera_prior_is_named(body, trained):
     m = synthetic_demos(body, "squat", 1, np.random.default_rng(3), seconds=0.3)[0]
     obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))

@@ -131,9 +131,10 @@ def floor_log_prior(points: np.ndarray, quats: np.ndarray, positions: np.ndarray
     coordinate along ``up``): ``p(h) = (1 - f) N(h; 0, s^2) + f U(h; 0, H)`` for ``h >= 0``, the Gaussian tail
     below, with ``f = floor_flight``, ``s = floor_std``, ``H = floor_flight_height``.
     """
-    rot = geometry.to_matrix(quats)
-    heights = camera_height + np.einsum("i,nij,npj->np", up, rot, points) + (positions @ up)[:, None]
-    h = heights.min(axis=1)
+    # The up direction in each base frame first: one einsum over all three operands ran as a naive loop, 0.3 s
+    # for the first frame's 3750 hypotheses against 5 ms in two steps.
+    up_base = np.einsum("i,nij->nj", up, geometry.to_matrix(quats))
+    h = camera_height + np.einsum("npj,nj->np", points, up_base).min(axis=1) + positions @ up
     cfg = config
     log_ground = np.log1p(-cfg.floor_flight) - 0.5 * (h / cfg.floor_std) ** 2 - np.log(np.sqrt(2 * np.pi) * cfg.floor_std)
     log_flight = np.where((h >= 0) & (h <= cfg.floor_flight_height), np.log(cfg.floor_flight / cfg.floor_flight_height),
