@@ -2,8 +2,8 @@
 ``joint_space`` method, exactly) under alternative rules, on the capture scenarios' own splits.
 
 Run: ``python benchmarks/database_rules.py [DIR] [--rules A,B] [--outliers E,F] [--states K ...]
-[--scenarios S,T]`` (DIR defaults to ``../shared/mocap/cmu``). For every run of ``scenarios/sim2real.yaml``, ``sim2real_mixed.yaml`` and both conditions
-of ``mocap.yaml`` (leave-one-out, cross-subject), the database is trained on what the pipeline trains it on
+[--scenarios S,T]`` (DIR defaults to ``../shared/mocap/cmu``). For every run of ``scenarios/sim2real.yaml``,
+``sim2real_mixed.yaml`` and both conditions of ``mocap.yaml`` (leave-one-out, cross-subject), the database is trained on what the pipeline trains it on
 (``pipeline.training_motions``) under each rule, and the test capture is recognised from its true joint-space
 features. Accuracy over all runs, then over the development demonstrations (the performer's calibration
 demonstrations, ``realism.calibration_split``: what settings are chosen on) and the report demonstrations
