@@ -7,8 +7,8 @@ For every run, the true base path is scaled in depth about the camera centre by 
 stays where the flows are, smaller or larger), and at each scale the path is also moved by every combination of
 a constant offset along the camera's y axis (``OFFSETS_M``) and a constant pitch about the camera's x axis
 (``PITCHES_DEG``): what a track can change to make a nearer or farther body fit. Every frame's flows are
-scored as the particles are weighed (``Scorer.frame_log_likelihood``, the flows' joint likelihood tempered by
-``n_eff_filter``) under the true primitive's moment-matched belief along the true path (the recursion of a track
+scored as the particles are weighed (``Scorer.pose_log_likelihood``, the flows' joint likelihood tempered by
+``n_eff_filter``, and a known floor's term if the scenario gives the camera's height) under the true primitive's moment-matched belief along the true path (the recursion of a track
 that believes only it). Summed over the clip, each scale's best score over the offsets and pitches is its
 *profile*; the unmoved path's score is its *exact* value. Prints per run and per condition where each peaks and
 each scale's median score against the true depth's (tempered nats over the clip).
@@ -73,8 +73,7 @@ def _one(job, position_scale: float = 1.0, top_state: bool = False) -> dict:
             dists = dataclasses.replace(dists, pos_cov=dists.pos_cov * position_scale)
             p = (SCALES[:, None, None, None] * pos[t] + offsets).reshape(-1, 3)
             q = geometry.multiply(pitches, np.broadcast_to(quat[t], (S * D * P, 4)))
-            img = scorer.image(frame, geometry.to_matrix(q), p, dists)
-            total += scorer.frame_log_likelihood(frame, img, cfg.n_eff_filter).reshape(S, D, P)
+            total += scorer.pose_log_likelihood(frame, q, p, dists, n_eff=cfg.n_eff_filter).reshape(S, D, P)
         scorer.recognise(frame, [rec], pos[t][None], quat[t][None])
     flat = total.reshape(S, -1)
     best = np.unravel_index(flat[int(flat.max(axis=1).argmax())].argmax(), (D, P))

@@ -135,22 +135,21 @@ def class_evidence(model, db, config, obs, pos, quat, base_features: np.ndarray 
     return total
 
 
-def scored_as(base: str, model, config, obs, pos, quat, v, w, features):
+def scored_as(base: str, zeroed, obs, pos, quat, v, w, features):
     """``(model, observation, base features or None)`` that ``class_evidence`` scores a run with for ``base``
     (module docstring): the base's motion given in part or whole is carried as the camera's, and the same part
-    of every state's base velocity is zeroed."""
+    of every state's base velocity is zeroed (``zeroed(features)``: the engine model with those features of
+    every state at zero, ``without_base_velocity``; ``zeroed(None)``: the model itself)."""
     if base == "database":
-        return model, obs, None
+        return zeroed(None), obs, None
     if base == "given-horizontal":
         along_floor = features[:, BASE_LINEAR].copy()
         along_floor[:, 2] = 0.0
         v_floor = np.einsum("tij,tj->ti", geometry.to_matrix(quat), along_floor)     # back to the camera frame
-        return (without_base_velocity(model, config, np.r_[BASE_LINEAR][:2]),
-                carried_base(obs, pos, v_floor, np.zeros_like(w)), None)
+        return (zeroed(tuple(np.r_[BASE_LINEAR][:2])), carried_base(obs, pos, v_floor, np.zeros_like(w)), None)
     if base == "given-rotation":
-        return (without_base_velocity(model, config, np.r_[BASE_ANGULAR]),
-                carried_base(obs, pos, np.zeros_like(v), w), None)
-    return (without_base_velocity(model, config), carried_base(obs, pos, v, w),
+        return zeroed(tuple(np.r_[BASE_ANGULAR])), carried_base(obs, pos, np.zeros_like(v), w), None
+    return (zeroed(tuple(BASE_FEATURES)), carried_base(obs, pos, v, w),
             features if base == "given+features" else None)
 
 
@@ -169,7 +168,16 @@ def _one(job) -> dict:
     features[:, BASE_LINEAR] = in_base_frame(quat, v)
     features[:, BASE_ANGULAR] = in_base_frame(quat, w)
     row = {"key": run.key, "class": run.test_class, "answers": {}, "demo": (inputs.motion.demo, inputs.motion.label)}
-    scored = {base: scored_as(base, model, config, obs, pos, quat, v, w, features) for base in bases}
+    built = {}       # "given" and "given+features" zero the same features: one model for both
+
+    def zeroed(feats):
+        if feats is None:
+            return model
+        if feats not in built:
+            built[feats] = without_base_velocity(model, config, list(feats))
+        return built[feats]
+
+    scored = {base: scored_as(base, zeroed, obs, pos, quat, v, w, features) for base in bases}
     for base, (m, o, extra) in scored.items():
         row["answers"][base] = classes[int(np.argmax(class_evidence(m, model.db, config, o, pos, quat, extra)))]
     for speed in floors:
