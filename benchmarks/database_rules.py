@@ -14,7 +14,8 @@ primitive (a side) to compare (default the database's 20).
 
 Rules (``RULES``): ``group`` (the feature groups' floors alone, as before issue 24), ``human`` (the human floor
 at ``FLOOR_SCALE``, the default), ``human<s>`` (at scale ``s``), ``human-rates`` (the human floor on the rates and the base's velocities only), ``balanced`` (the human floor, and every class
-trained on as many demonstrations as the class with the fewest, taken round-robin over subjects),
+trained on as many demonstrations as the class with the fewest, taken round-robin over subjects), ``tempo`` (the human
+floor, and every capture also played 0.8 and 1.25 times as fast, ``tempo_copies``),
 ``offset-group`` / ``offset-human`` (sim2real only: per-class log-likelihood offsets per frame fitted on the
 development captures, ``fit_offsets``). One-class databases are cached by class, rule and training motions (and the
 whole training set, for a class with features none of its demonstrations measures: their population), so a
@@ -47,6 +48,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DIR = ROOT.parent / "shared" / "mocap" / "cmu"
 SCENARIOS = {"sim2real": "sim2real.yaml", "mixed": "sim2real_mixed.yaml", "mocap": "mocap.yaml"}
 SCALES = (1.0, 2.0, 4.0, 8.0)
+TEMPO_FACTORS = (0.8, 1.25)
 
 
 def floor_at(scale: float) -> np.ndarray:
@@ -70,6 +72,14 @@ def balanced(motions):
     return out
 
 
+def tempo_copies(motions, factors=TEMPO_FACTORS):
+    """Every captured demonstration also at each tempo of ``factors`` (played that many times faster,
+    ``Motion.resample`` then the original frame rate): a style-free spread of speeds for cross-subject
+    recognition to learn from. Procedural demonstrations are left as they are (the performer varies tempo)."""
+    return list(motions) + [m.resample(m.fps / s).replace(fps=m.fps, demo=f"{m.demo}@{s:g}")
+                            for m in motions if m.source != "procedural" for s in factors]
+
+
 def rates_only(scale: float) -> np.ndarray:
     """The human floor on the angle rates and the base's velocities only; the angles keep the group floor."""
     floor = floor_at(scale)
@@ -79,7 +89,8 @@ def rates_only(scale: float) -> np.ndarray:
 
 RULES = {"group": (group_floor, None), "human": (lambda: floor_at(FLOOR_SCALE), None),
          "human-rates": (lambda: rates_only(FLOOR_SCALE), None),
-         "balanced": (lambda: floor_at(FLOOR_SCALE), balanced)} | {
+         "balanced": (lambda: floor_at(FLOOR_SCALE), balanced),
+         "tempo": (lambda: floor_at(FLOOR_SCALE), tempo_copies)} | {
     f"human{s:g}": ((lambda s=s: floor_at(s)), None) for s in SCALES}
 
 
