@@ -16,6 +16,12 @@ each scale's median score against the true depth's (tempered nats over the clip)
 ``--position-scale K`` multiplies the weighing's position covariances by ``K`` (the depth's calibration against
 the covariances' width); ``--top-state`` weighs under the belief's most probable state alone instead of the
 moment-matched blob of its states.
+
+``--posture true|recovered`` weighs at one posture per frame instead of the belief's states: the true angles and
+rates (``--posture-noise S``: each angle off by a Gaussian offset of std ``S`` rad, one per angle and run, seeded),
+or the angles the engine recovers handed the true base pose scaled in depth by ``--recovered-at K`` (the
+``gt_base`` run's; K = 1: the true base) with their own rates (backward differences); the true base velocities;
+every angle with the std ``--posture-std S`` rad (0: the surface patch alone). How wide the posture's uncertainty is sets how sharply the flows tell depth.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import time
+import zlib
 from functools import partial
 
 import numpy as np
@@ -35,7 +42,8 @@ PITCHES_DEG = np.arange(-20.0, 21.0, 5.0)
 TRUE = int(np.flatnonzero(SCALES == 1.0)[0])
 
 
-def _one(job, position_scale: float = 1.0, top_state: bool = False) -> dict:
+def _one(job, position_scale: float = 1.0, top_state: bool = False, posture: str = "belief", posture_std: float = 0.0,
+         posture_noise: float = 0.0, recovered_at: float = 1.0) -> dict:
     run, overrides = job
     from harness import geometry
     from harness.engine.frame import observation_frames
@@ -51,6 +59,8 @@ def _one(job, position_scale: float = 1.0, top_state: bool = False) -> dict:
     c = list(model.db.classes_).index(run.test_class)
     rec = Recognizer(model.db, cfg.start_spread, cfg.prune).restrict([c])
     pos, quat = truth.base_pos_cam, truth.base_quat_cam
+    postures = None if posture == "belief" else _postures(run, inputs, tracker, posture, posture_std,
+                                                          posture_noise, recovered_at)
     S, D, P = len(SCALES), len(OFFSETS_M), len(PITCHES_DEG)
     half = np.deg2rad(PITCHES_DEG) / 2
     pitch = np.stack([np.cos(half), np.sin(half), np.zeros(P), np.zeros(P)], axis=1)      # about camera x
@@ -69,7 +79,7 @@ def _one(job, position_scale: float = 1.0, top_state: bool = False) -> dict:
             rows[np.arange(len(rows)) != c] = 0.0
             if top_state:
                 rows = (np.arange(rows.size) == rows.argmax()).astype(float).reshape(rows.shape)
-            dists = model.dists.mixtures(rows.reshape(1, -1) / rows.sum())
+            dists = model.dists.mixtures(rows.reshape(1, -1) / rows.sum()) if postures is None else postures[t]
             dists = dataclasses.replace(dists, pos_cov=dists.pos_cov * position_scale)
             p = (SCALES[:, None, None, None] * pos[t] + offsets).reshape(-1, 3)
             q = geometry.multiply(pitches, np.broadcast_to(quat[t], (S * D * P, 4)))
@@ -82,15 +92,42 @@ def _one(job, position_scale: float = 1.0, top_state: bool = False) -> dict:
             "offset_m": float(OFFSETS_M[best[0]]), "pitch_deg": float(PITCHES_DEG[best[1]])}
 
 
+def _postures(run, inputs, tracker, posture: str, std: float, noise: float, recovered_at: float) -> list:
+    """Per frame the model points' distributions at one posture (``--posture``, module docstring)."""
+    from harness.engine.transform import JointGaussians, state_point_distributions
+    from harness.motion.motion import velocities_of
+
+    obs, truth, model = inputs.obs, inputs.truth, tracker.model
+    true_velocity = velocities_of(truth.qpos, obs.fps, "backward")
+    if posture == "recovered":
+        angles = tracker.run(obs, base_pose=(recovered_at * truth.base_pos_cam, truth.base_quat_cam)).qpos[:, 7:]
+        rates = np.diff(angles, axis=0, prepend=angles[:1]) * obs.fps
+    else:       # the noise is one offset per angle for the run: a posture that is off, not one that jitters
+        offset = np.random.default_rng([run.config.seed, zlib.crc32(run.key.encode())]).normal(0.0, noise, 50)
+        angles, rates = truth.qpos[:, 7:] + (offset if noise > 0 else 0.0), true_velocity.angles
+    return [state_point_distributions(model.body, JointGaussians(
+        angles[t], np.full(angles.shape[1], std**2), rates[t], np.zeros(angles.shape[1]),
+        true_velocity.base_linear[t], np.zeros(3), true_velocity.base_angular[t], np.zeros(3)),
+        model.points, model.spread) for t in range(len(angles))]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     dev_runs.add_arguments(ap)
     ap.add_argument("--position-scale", type=float, default=1.0, help="the weighing's position covariances x this")
     ap.add_argument("--top-state", action="store_true", help="the belief's most probable state instead of its blob")
+    ap.add_argument("--posture", choices=["belief", "true", "recovered"], default="belief",
+                    help="weigh at one posture per frame (module docstring)")
+    ap.add_argument("--posture-std", type=float, default=0.0, help="rad: every angle's std at that posture")
+    ap.add_argument("--posture-noise", type=float, default=0.0, help="rad: noise added to the true angles")
+    ap.add_argument("--recovered-at", type=float, default=1.0, help="the recovered posture's base at this x the "
+                    "true depth")
     args = ap.parse_args()
     runs = dev_runs.selected(args)
     t0 = time.perf_counter()
-    rows = dev_runs.map_runs(partial(_one, position_scale=args.position_scale, top_state=args.top_state), runs, args)
+    rows = dev_runs.map_runs(partial(_one, position_scale=args.position_scale, top_state=args.top_state,
+                                      posture=args.posture, posture_std=args.posture_std,
+                                      posture_noise=args.posture_noise, recovered_at=args.recovered_at), runs, args)
     print(f"{'run':28s} {'condition':24s} exact  profile  (peaks; then the profile per scale against the true depth,"
           f" and the best offset and pitch)")
     for r in rows:
