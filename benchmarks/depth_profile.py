@@ -21,7 +21,8 @@ moment-matched blob of its states.
 rates (``--posture-noise S``: each angle off by a Gaussian offset of std ``S`` rad, one per angle and run, seeded),
 or the angles the engine recovers handed the true base pose scaled in depth by ``--recovered-at K`` (the
 ``gt_base`` run's; K = 1: the true base) with their own rates (backward differences); the true base velocities;
-every angle with the std ``--posture-std S`` rad (0: the surface patch alone). How wide the posture's uncertainty is sets how sharply the flows tell depth.
+every angle with the std ``--posture-std S`` rad (0: the surface patch alone). How well the posture is known sets
+how sharply the flows tell depth (``docs/engine.md``, "The width is the posture's uncertainty").
 """
 
 from __future__ import annotations
@@ -103,10 +104,12 @@ def _postures(run, inputs, tracker, posture: str, std: float, noise: float, reco
         angles = tracker.run(obs, base_pose=(recovered_at * truth.base_pos_cam, truth.base_quat_cam)).qpos[:, 7:]
         rates = np.diff(angles, axis=0, prepend=angles[:1]) * obs.fps
     else:       # the noise is one offset per angle for the run: a posture that is off, not one that jitters
-        offset = np.random.default_rng([run.config.seed, zlib.crc32(run.key.encode())]).normal(0.0, noise, 50)
-        angles, rates = truth.qpos[:, 7:] + (offset if noise > 0 else 0.0), true_velocity.angles
+        rng = np.random.default_rng([run.config.seed, zlib.crc32(run.key.encode())])
+        angles, rates = truth.qpos[:, 7:], true_velocity.angles
+        angles = angles + rng.normal(0.0, noise, angles.shape[1])
+    J = angles.shape[1]
     return [state_point_distributions(model.body, JointGaussians(
-        angles[t], np.full(angles.shape[1], std**2), rates[t], np.zeros(angles.shape[1]),
+        angles[t], np.full(J, std**2), rates[t], np.zeros(J),
         true_velocity.base_linear[t], np.zeros(3), true_velocity.base_angular[t], np.zeros(3)),
         model.points, model.spread) for t in range(len(angles))]
 
@@ -119,7 +122,7 @@ def main() -> None:
     ap.add_argument("--posture", choices=["belief", "true", "recovered"], default="belief",
                     help="weigh at one posture per frame (module docstring)")
     ap.add_argument("--posture-std", type=float, default=0.0, help="rad: every angle's std at that posture")
-    ap.add_argument("--posture-noise", type=float, default=0.0, help="rad: noise added to the true angles")
+    ap.add_argument("--posture-noise", type=float, default=0.0, help="rad: std of a fixed offset on each true angle")
     ap.add_argument("--recovered-at", type=float, default=1.0, help="the recovered posture's base at this x the "
                     "true depth")
     args = ap.parse_args()
