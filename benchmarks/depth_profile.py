@@ -73,24 +73,32 @@ def _one(job, position_scale: float = 1.0, top_state: bool = False, posture: str
         t = frame.index
         if not (started or frame.has_flows):
             continue
-        rec.predict()
         started = True
+        if postures is None:        # the belief is what is weighed under, and only then
+            rec.predict()
         if frame.has_flows:
-            rows = np.where(rec.active(), rec.state_posterior, 0.0)
-            rows[np.arange(len(rows)) != c] = 0.0
-            if top_state:
-                rows = (np.arange(rows.size) == rows.argmax()).astype(float).reshape(rows.shape)
-            dists = model.dists.mixtures(rows.reshape(1, -1) / rows.sum()) if postures is None else postures[t]
+            dists = _belief_blob(model, rec, c, top_state) if postures is None else postures[t]
             dists = dataclasses.replace(dists, pos_cov=dists.pos_cov * position_scale)
             p = (SCALES[:, None, None, None] * pos[t] + offsets).reshape(-1, 3)
             q = geometry.multiply(pitches, np.broadcast_to(quat[t], (S * D * P, 4)))
             total += scorer.pose_log_likelihood(frame, q, p, dists, n_eff=cfg.n_eff_filter).reshape(S, D, P)
-        scorer.recognise(frame, [rec], pos[t][None], quat[t][None])
+        if postures is None:
+            scorer.recognise(frame, [rec], pos[t][None], quat[t][None])
     flat = total.reshape(S, -1)
     best = np.unravel_index(flat[int(flat.max(axis=1).argmax())].argmax(), (D, P))
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class,
             "profile": flat.max(axis=1), "exact": total[:, D // 2, P // 2],
             "offset_m": float(OFFSETS_M[best[0]]), "pitch_deg": float(PITCHES_DEG[best[1]])}
+
+
+def _belief_blob(model, rec, c: int, top_state: bool):
+    """The moment-matched blob of primitive ``c``'s active states under the belief ``rec`` (or its most probable
+    state alone, ``top_state``)."""
+    rows = np.where(rec.active(), rec.state_posterior, 0.0)
+    rows[np.arange(len(rows)) != c] = 0.0
+    if top_state:
+        rows = (np.arange(rows.size) == rows.argmax()).astype(float).reshape(rows.shape)
+    return model.dists.mixtures(rows.reshape(1, -1) / rows.sum())
 
 
 def _postures(run, inputs, tracker, posture: str, std: float, noise: float, recovered_at: float) -> list:
