@@ -36,6 +36,7 @@ from functools import partial
 import numpy as np
 
 import dev_runs
+from harness.engine.features import ANGLE_RATES, ANGLES
 
 SCALES = np.array([0.8, 0.9, 1.0, 1.1, 1.2, 1.35, 1.5])
 OFFSETS_M = np.linspace(-0.4, 0.4, 17)
@@ -103,23 +104,39 @@ def _belief_blob(model, rec, c: int, top_state: bool):
 
 def _postures(run, inputs, tracker, posture: str, std: float, noise: float, recovered_at: float) -> list:
     """Per frame the model points' distributions at one posture (``--posture``, module docstring)."""
-    from harness.engine.transform import JointGaussians, state_point_distributions
+    if posture == "recovered":
+        obs, truth = inputs.obs, inputs.truth
+        angles = tracker.run(obs, base_pose=(recovered_at * truth.base_pos_cam, truth.base_quat_cam)).qpos[:, 7:]
+        features = true_features(run, inputs)
+        features[:, ANGLES] = angles
+        features[:, ANGLE_RATES] = np.diff(angles, axis=0, prepend=angles[:1]) * obs.fps
+    else:
+        features = true_features(run, inputs, noise)
+    return posture_points(tracker.model, features, std)
+
+
+def true_features(run, inputs, noise: float = 0.0) -> np.ndarray:
+    """``(T, 106)`` the true motion's features (``harness.engine.features``: the angles, their rates and the base's
+    velocities, backward differences), every angle off by a Gaussian offset of std ``noise`` rad: one offset per
+    angle for the run (a posture that is off, not one that jitters), seeded by the run's seed and key."""
     from harness.motion.motion import velocities_of
 
-    obs, truth, model = inputs.obs, inputs.truth, tracker.model
-    true_velocity = velocities_of(truth.qpos, obs.fps, "backward")
-    if posture == "recovered":
-        angles = tracker.run(obs, base_pose=(recovered_at * truth.base_pos_cam, truth.base_quat_cam)).qpos[:, 7:]
-        rates = np.diff(angles, axis=0, prepend=angles[:1]) * obs.fps
-    else:       # the noise is one offset per angle for the run: a posture that is off, not one that jitters
-        rng = np.random.default_rng([run.config.seed, zlib.crc32(run.key.encode())])
-        angles, rates = truth.qpos[:, 7:], true_velocity.angles
-        angles = angles + rng.normal(0.0, noise, angles.shape[1])
-    J = angles.shape[1]
-    return [state_point_distributions(model.body, JointGaussians(
-        angles[t], np.full(J, std**2), rates[t], np.zeros(J),
-        true_velocity.base_linear[t], np.zeros(3), true_velocity.base_angular[t], np.zeros(3)),
-        model.points, model.spread) for t in range(len(angles))]
+    truth = inputs.truth
+    vel = velocities_of(truth.qpos, inputs.obs.fps, "backward")
+    rng = np.random.default_rng([run.config.seed, zlib.crc32(run.key.encode())])
+    angles = truth.qpos[:, 7:] + rng.normal(0.0, noise, truth.qpos.shape[1] - 7)
+    return np.concatenate([angles, vel.angles, vel.base_linear, vel.base_angular], axis=1)
+
+
+def posture_points(model, features: np.ndarray, angle_std: float) -> list:
+    """Per frame of ``features`` ``(T, 106)`` the model points' distributions at that one posture: every angle
+    with the std ``angle_std`` rad (0: the surface patch alone), the rates and the base's velocities exact."""
+    from harness.engine.transform import JointGaussians, state_point_distributions
+
+    var = np.zeros(features.shape[1])
+    var[ANGLES] = angle_std**2
+    return [state_point_distributions(model.body, JointGaussians.from_features(f[None], var[None]), model.points,
+                                      model.spread) for f in features]
 
 
 def main() -> None:

@@ -1,0 +1,113 @@
+"""How sharply do the flows tell the true pose from its exact twin, and how does that depend on the posture?
+
+    MUJOCO_GL=egl python benchmarks/twin_posture.py [--scenario scenarios/default.yaml] [--seed S]
+        [--amount 0.0 0.4] [--limit N] [--jobs 2] [--set KEY=VALUE ...] [--offsets 0.1 0.2]
+
+For every run, every frame's flows are scored as the particles are weighed (``Scorer.pose_log_likelihood``, the
+flows' joint likelihood tempered by ``n_eff_filter``) at the true base pose and at its exact twin
+(``track.twin``: the depth reflected through the pelvis and the body mirrored left to right; the same position),
+each at a posture:
+- ``blob``: the true primitive's moment-matched belief along the true path (the recursion of a track that
+  believes only it), as the engine weighs; the twin under the same belief mirrored (each state's posterior moved
+  to its mirror-image chain, ``database.mirror_chains``);
+- ``true``: the true angles, their rates and the base's velocities, the surface patch alone; the twin at the
+  mirror image of that posture (``features.mirror_features``), which is exactly the reflected body;
+- ``off<S>``: the true angles each off by a fixed offset of std ``S`` rad (one per angle and run, seeded, as
+  ``depth_profile.py --posture-noise``) and every angle with the std ``S``; the twin at its mirror image.
+
+Summed over the clip, the truth's score minus the twin's is the twin's *margin* (tempered nats): printed per
+condition and class as the median over runs and the share of runs in which the truth scores higher. The exact
+twin is held at the true position; a track at the twin heading may also move and pitch to fit better, so these
+margins bound what the weighing can tell, they are not what the tracks see. ``docs/engine.md``, "The twin is told
+as sharply as the posture is known".
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections import defaultdict
+from functools import partial
+
+import numpy as np
+
+import dev_runs
+from depth_profile import posture_points, true_features
+
+
+def _one(job, offsets: tuple[float, ...]) -> dict:
+    run, overrides = job
+    from harness.engine.features import mirror_features
+    from harness.engine.frame import observation_frames
+    from harness.engine.recognition import Recognizer
+    from harness.engine.scoring import Scorer
+    from harness.engine.track import twin
+    from harness.evaluation import pipeline
+
+    inputs = pipeline.run_inputs(run)
+    obs, truth = inputs.obs, inputs.truth
+    tracker = dev_runs.tracker_for(inputs, overrides)
+    model, cfg = tracker.model, tracker.config
+    scorer = Scorer(model, cfg)
+    c = list(model.db.classes_).index(run.test_class)
+    rec = Recognizer(model.db, cfg.start_spread, cfg.prune).restrict([c])
+    pos, quat = truth.base_pos_cam, truth.base_quat_cam
+    poses = (quat, twin(quat))
+    postures = {}
+    for name, noise in [("true", 0.0)] + [(f"off{s:g}", s) for s in offsets]:
+        features = true_features(run, inputs, noise)
+        postures[name] = (posture_points(model, features, noise), posture_points(model, mirror_features(features), noise))
+    half = model.db.means_.shape[1] // 2        # a both-handed primitive's chain and its mirror image
+    margin = dict.fromkeys(["blob", *postures], 0.0)
+    started = False
+    for frame in observation_frames(obs, cfg):
+        t = frame.index
+        if not (started or frame.has_flows):
+            continue
+        started = True
+        rec.predict()
+        if frame.has_flows:
+            rows = np.where(rec.active(), rec.state_posterior, 0.0)
+            rows[np.arange(len(rows)) != c] = 0.0
+            mirrored = np.concatenate([rows[:, half:], rows[:, :half]], axis=1)
+            dists = {"blob": (model.dists.mixtures(rows.reshape(1, -1) / rows.sum()),
+                              model.dists.mixtures(mirrored.reshape(1, -1) / mirrored.sum()))}
+            dists |= {name: (a[t], b[t]) for name, (a, b) in postures.items()}
+            for name, pair in dists.items():
+                score = [scorer.pose_log_likelihood(frame, q[t][None], pos[t][None], d, n_eff=cfg.n_eff_filter)[0]
+                         for q, d in zip(poses, pair)]
+                margin[name] += float(score[0] - score[1])
+        scorer.recognise(frame, [rec], pos[t][None], quat[t][None])
+    return {"key": run.key, "condition": run.condition_label, "class": run.test_class, "margin": margin}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    dev_runs.add_arguments(ap)
+    ap.add_argument("--offsets", type=float, nargs="*", default=[0.1, 0.2],
+                    help="rad: std of the true angles' fixed offsets (and of every angle) to score at")
+    args = ap.parse_args()
+    runs = dev_runs.selected(args)
+    t0 = time.perf_counter()
+    rows = dev_runs.map_runs(partial(_one, offsets=tuple(args.offsets)), runs, args)
+    modes = list(rows[0]["margin"])
+    print("the truth's score minus its exact twin's over the clip (tempered nats): median over runs (share of runs "
+          "the truth scores higher)")
+    for cond in dict.fromkeys(r["condition"] for r in rows):
+        sub = [r for r in rows if r["condition"] == cond]
+        by_class = defaultdict(list)
+        for r in sub:
+            by_class[r["class"]].append(r)
+        print(f"{cond} ({len(sub)} runs)")
+        print(f"  {'class':13s} " + " ".join(f"{m:>15s}" for m in modes))
+        for name, group in [("all", sub)] + sorted(by_class.items()):
+            cells = []
+            for m in modes:
+                v = np.array([r["margin"][m] for r in group])
+                cells.append(f"{np.median(v):8.1f} ({np.mean(v > 0):.2f})")
+            print(f"  {name:13s} " + " ".join(f"{c:>15s}" for c in cells))
+    print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
