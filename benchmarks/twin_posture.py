@@ -14,6 +14,9 @@ each at a posture:
   mirror image of that posture (``features.mirror_features``), which is exactly the reflected body;
 - ``off<S>``: the true angles each off by a fixed offset of std ``S`` rad (one per angle and run, seeded, as
   ``depth_profile.py --posture-noise``) and every angle with the std ``S``; the twin at its mirror image.
+- ``recovered<S>`` (``--recovered S``): each path at the posture the engine recovers when handed that path
+  (the ``gt_base`` run along the true positions with the truth's or the twin's orientations), every angle with
+  the std ``S`` rad, the rates by backward differences of the recovered angles, the base's velocities true.
 
 Summed over the clip, the truth's score minus the twin's is the twin's *margin* (tempered nats): printed per
 condition and class as the median over runs and the share of runs in which the truth scores higher. The exact
@@ -33,9 +36,10 @@ import numpy as np
 
 import dev_runs
 from depth_profile import posture_points, true_features
+from harness.engine.features import ANGLE_RATES, ANGLES
 
 
-def _one(job, offsets: tuple[float, ...]) -> dict:
+def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
     run, overrides = job
     from harness.engine.features import mirror_features
     from harness.engine.frame import observation_frames
@@ -57,6 +61,9 @@ def _one(job, offsets: tuple[float, ...]) -> dict:
     for name, noise in [("true", 0.0)] + [(f"off{s:g}", s) for s in offsets]:
         features = true_features(run, inputs, noise)
         postures[name] = (posture_points(model, features, noise), posture_points(model, mirror_features(features), noise))
+    if recovered is not None:
+        postures[f"recovered{recovered:g}"] = tuple(
+            posture_points(model, _recovered_features(tracker, inputs, run, q), recovered) for q in poses)
     half = model.db.means_.shape[1] // 2        # a both-handed primitive's chain and its mirror image
     margin = dict.fromkeys(["blob", *postures], 0.0)
     started = False
@@ -81,15 +88,28 @@ def _one(job, offsets: tuple[float, ...]) -> dict:
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, "margin": margin}
 
 
+def _recovered_features(tracker, inputs, run, quats: np.ndarray) -> np.ndarray:
+    """The true features with the angles and their rates the engine recovers handed the true positions and the
+    orientations ``quats`` (the ``gt_base`` run's: the truth's, or its twin's)."""
+    obs = inputs.obs
+    angles = tracker.run(obs, base_pose=(inputs.truth.base_pos_cam, quats)).qpos[:, 7:]
+    features = true_features(run, inputs)
+    features[:, ANGLES] = angles
+    features[:, ANGLE_RATES] = np.diff(angles, axis=0, prepend=angles[:1]) * obs.fps
+    return features
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     dev_runs.add_arguments(ap)
     ap.add_argument("--offsets", type=float, nargs="*", default=[0.1, 0.2],
                     help="rad: std of the true angles' fixed offsets (and of every angle) to score at")
+    ap.add_argument("--recovered", type=float, default=None, metavar="STD",
+                    help="also score each path at the posture recovered along it, every angle with this std (rad)")
     args = ap.parse_args()
     runs = dev_runs.selected(args)
     t0 = time.perf_counter()
-    rows = dev_runs.map_runs(partial(_one, offsets=tuple(args.offsets)), runs, args)
+    rows = dev_runs.map_runs(partial(_one, offsets=tuple(args.offsets), recovered=args.recovered), runs, args)
     modes = list(rows[0]["margin"])
     print("the truth's score minus its exact twin's over the clip (tempered nats): median over runs (share of runs "
           "the truth scores higher)")
