@@ -16,7 +16,8 @@ each at a posture:
   ``depth_profile.py --posture-noise``) and every angle with the std ``S``; the twin at its mirror image.
 - ``recovered<S>`` (``--recovered S``): each path at the posture the engine recovers when handed that path
   (the ``gt_base`` run along the true positions with the truth's or the twin's orientations), every angle with
-  the std ``S`` rad, the rates by backward differences of the recovered angles, the base's velocities true.
+  the std ``S`` rad, the rates by backward differences of the recovered angles, the base's velocities true
+  (the twin's mirrored).
 
 Summed over the clip, the truth's score minus the twin's is the twin's *margin* (tempered nats): printed per
 condition and class as the median over runs and the share of runs in which the truth scores higher. The exact
@@ -63,7 +64,8 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
         postures[name] = (posture_points(model, features, noise), posture_points(model, mirror_features(features), noise))
     if recovered is not None:
         postures[f"recovered{recovered:g}"] = tuple(
-            posture_points(model, _recovered_features(tracker, inputs, run, q), recovered) for q in poses)
+            posture_points(model, _recovered_features(tracker, inputs, run, q, mirrored), recovered)
+            for q, mirrored in zip(poses, (False, True)))
     half = model.db.means_.shape[1] // 2        # a both-handed primitive's chain and its mirror image
     margin = dict.fromkeys(["blob", *postures], 0.0)
     started = False
@@ -88,12 +90,15 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, "margin": margin}
 
 
-def _recovered_features(tracker, inputs, run, quats: np.ndarray) -> np.ndarray:
-    """The true features with the angles and their rates the engine recovers handed the true positions and the
-    orientations ``quats`` (the ``gt_base`` run's: the truth's, or its twin's)."""
+def _recovered_features(tracker, inputs, run, quats: np.ndarray, mirrored: bool) -> np.ndarray:
+    """The true features (``mirrored``: their mirror image, the twin's base velocities) with the angles and their
+    rates the engine recovers handed the true positions and the orientations ``quats`` (the ``gt_base`` run's)."""
+    from harness.engine.features import mirror_features
+
     obs = inputs.obs
     angles = tracker.run(obs, base_pose=(inputs.truth.base_pos_cam, quats)).qpos[:, 7:]
     features = true_features(run, inputs)
+    features = mirror_features(features) if mirrored else features
     features[:, ANGLES] = angles
     features[:, ANGLE_RATES] = np.diff(angles, axis=0, prepend=angles[:1]) * obs.fps
     return features
