@@ -105,14 +105,22 @@ def _belief_blob(model, rec, c: int, top_state: bool):
 def _postures(run, inputs, tracker, posture: str, std: float, noise: float, recovered_at: float) -> list:
     """Per frame the model points' distributions at one posture (``--posture``, module docstring)."""
     if posture == "recovered":
-        obs, truth = inputs.obs, inputs.truth
-        angles = tracker.run(obs, base_pose=(recovered_at * truth.base_pos_cam, truth.base_quat_cam)).qpos[:, 7:]
-        features = true_features(run, inputs)
-        features[:, ANGLES] = angles
-        features[:, ANGLE_RATES] = np.diff(angles, axis=0, prepend=angles[:1]) * obs.fps
+        truth = inputs.truth
+        features = recovered_features(inputs, tracker, recovered_at * truth.base_pos_cam, truth.base_quat_cam,
+                                      true_features(run, inputs))
     else:
         features = true_features(run, inputs, noise)
     return posture_points(tracker.model, features, std)
+
+
+def recovered_features(inputs, tracker, positions: np.ndarray, quats: np.ndarray, features: np.ndarray) -> np.ndarray:
+    """``features`` ``(T, 106)`` with the angles the engine recovers when handed the base path ``positions``,
+    ``quats`` (camera frame; the ``gt_base`` run's) and their rates (backward differences) in place of theirs."""
+    angles = tracker.run(inputs.obs, base_pose=(positions, quats)).qpos[:, 7:]
+    out = np.array(features, dtype=float)
+    out[:, ANGLES] = angles
+    out[:, ANGLE_RATES] = np.diff(angles, axis=0, prepend=angles[:1]) * inputs.obs.fps
+    return out
 
 
 def true_features(run, inputs, noise: float = 0.0) -> np.ndarray:

@@ -36,8 +36,7 @@ from functools import partial
 import numpy as np
 
 import dev_runs
-from depth_profile import posture_points, true_features
-from harness.engine.features import ANGLE_RATES, ANGLES
+from depth_profile import posture_points, recovered_features, true_features
 
 
 def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
@@ -62,10 +61,11 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
     for name, noise in [("true", 0.0)] + [(f"off{s:g}", s) for s in offsets]:
         features = true_features(run, inputs, noise)
         postures[name] = (posture_points(model, features, noise), posture_points(model, mirror_features(features), noise))
-    if recovered is not None:
+    if recovered is not None:       # the twin's base velocities are the true ones mirrored
+        true = true_features(run, inputs)
         postures[f"recovered{recovered:g}"] = tuple(
-            posture_points(model, _recovered_features(tracker, inputs, run, q, mirrored), recovered)
-            for q, mirrored in zip(poses, (False, True)))
+            posture_points(model, recovered_features(inputs, tracker, pos, q, f), recovered)
+            for q, f in zip(poses, (true, mirror_features(true))))
     half = model.db.means_.shape[1] // 2        # a both-handed primitive's chain and its mirror image
     margin = dict.fromkeys(["blob", *postures], 0.0)
     started = False
@@ -88,20 +88,6 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
                 margin[name] += float(score[0] - score[1])
         scorer.recognise(frame, [rec], pos[t][None], quat[t][None])
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, "margin": margin}
-
-
-def _recovered_features(tracker, inputs, run, quats: np.ndarray, mirrored: bool) -> np.ndarray:
-    """The true features (``mirrored``: their mirror image, the twin's base velocities) with the angles and their
-    rates the engine recovers handed the true positions and the orientations ``quats`` (the ``gt_base`` run's)."""
-    from harness.engine.features import mirror_features
-
-    obs = inputs.obs
-    angles = tracker.run(obs, base_pose=(inputs.truth.base_pos_cam, quats)).qpos[:, 7:]
-    features = true_features(run, inputs)
-    features = mirror_features(features) if mirrored else features
-    features[:, ANGLES] = angles
-    features[:, ANGLE_RATES] = np.diff(angles, axis=0, prepend=angles[:1]) * obs.fps
-    return features
 
 
 def main() -> None:
