@@ -20,7 +20,10 @@ each at a posture:
   (the twin's mirrored).
 
 Summed over the clip, the truth's score minus the twin's is the twin's *margin* (tempered nats): printed per
-condition and class as the median over runs and the share of runs in which the truth scores higher. The exact
+condition and class as the median over runs and the share of runs in which the truth scores higher. Also per
+condition: how far the belief's posture is from the true one along the true path (the true angles minus the
+belief's mean angles, rms over the angles the performance moves), beside the blob's own spread, and split into
+the part that is constant over the clip (the performer's style: its mean) and the part that varies. The exact
 twin is held at the true position; a track at the twin heading may also move and pitch to fit better, so these
 margins bound what the weighing can tell, they are not what the tracks see. ``docs/engine.md``, "The twin is told
 as sharply as the posture is known".
@@ -37,6 +40,7 @@ import numpy as np
 
 import dev_runs
 from depth_profile import posture_points, recovered_features, true_features
+from harness.engine.features import ANGLES
 
 
 def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
@@ -68,6 +72,8 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
             for q, f in zip(poses, (true, mirror_features(true))))
     half = model.db.means_.shape[1] // 2        # a both-handed primitive's chain and its mirror image
     margin = dict.fromkeys(["blob", *postures], 0.0)
+    angle_means, angle_vars = model.db.means_[c][:, ANGLES], model.db.covars_[c][:, ANGLES]
+    errors, blob_vars = [], []
     started = False
     for frame in observation_frames(obs, cfg):
         t = frame.index
@@ -78,6 +84,10 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
         if frame.has_flows:
             rows = np.where(rec.active(), rec.state_posterior, 0.0)
             rows[np.arange(len(rows)) != c] = 0.0
+            gamma = rows[c] / rows[c].sum()
+            mean = gamma @ angle_means
+            errors.append(truth.qpos[t, 7:] - mean)
+            blob_vars.append(gamma @ (angle_vars + (angle_means - mean) ** 2))
             mirrored = np.concatenate([rows[:, half:], rows[:, :half]], axis=1)
             dists = {"blob": (model.dists.mixtures(rows.reshape(1, -1) / rows.sum()),
                               model.dists.mixtures(mirrored.reshape(1, -1) / mirrored.sum()))}
@@ -87,7 +97,12 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
                          for q, d in zip(poses, pair)]
                 margin[name] += float(score[0] - score[1])
         scorer.recognise(frame, [rec], pos[t][None], quat[t][None])
-    return {"key": run.key, "condition": run.condition_label, "class": run.test_class, "margin": margin}
+    moving = np.ptp(truth.qpos[:, 7:], axis=0) > 1e-3       # the angles the performance moves
+    errors, offset = np.array(errors)[:, moving], np.mean(errors, axis=0)[moving]
+    rms = lambda a: float(np.sqrt(np.mean(np.square(a))))  # noqa: E731
+    return {"key": run.key, "condition": run.condition_label, "class": run.test_class, "margin": margin,
+            "posture": {"blob_std": rms(np.sqrt(np.array(blob_vars)[:, moving])), "error": rms(errors),
+                        "offset": rms(offset), "varying": rms(errors - offset)}}
 
 
 def main() -> None:
@@ -110,6 +125,10 @@ def main() -> None:
         for r in sub:
             by_class[r["class"]].append(r)
         print(f"{cond} ({len(sub)} runs)")
+        posture = {k: np.median([r["posture"][k] for r in sub]) for k in sub[0]["posture"]}
+        print(f"  the belief's posture along the true path (rad, rms over the moved angles, median over runs): error "
+              f"{posture['error']:.3f} (the blob's std {posture['blob_std']:.3f}), of which constant over the clip "
+              f"{posture['offset']:.3f} and varying {posture['varying']:.3f}")
         print(f"  {'class':13s} " + " ".join(f"{m:>15s}" for m in modes))
         for name, group in [("all", sub)] + sorted(by_class.items()):
             cells = []
