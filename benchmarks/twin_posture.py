@@ -1,7 +1,8 @@
 """How sharply do the flows tell the true pose from its exact twin, and how does that depend on the posture?
 
     MUJOCO_GL=egl python benchmarks/twin_posture.py [--scenario scenarios/default.yaml] [--seed S]
-        [--amount 0.0 0.4] [--limit N] [--jobs 2] [--set KEY=VALUE ...] [--offsets 0.1 0.2]
+        [--amount 0.0 0.4] [--limit N] [--jobs 2] [--set KEY=VALUE ...] [--offsets 0.1 0.2] [--samples K]
+        [--recovered STD]
 
 For every run, every frame's flows are scored as the particles are weighed (``Scorer.pose_log_likelihood``, the
 flows' joint likelihood tempered by ``n_eff_filter``) at the true base pose and at its exact twin
@@ -13,7 +14,11 @@ each at a posture:
 - ``true``: the true angles, their rates and the base's velocities, the surface patch alone; the twin at the
   mirror image of that posture (``features.mirror_features``), which is exactly the reflected body;
 - ``off<S>``: the true angles each off by a fixed offset of std ``S`` rad (one per angle and run, seeded, as
-  ``depth_profile.py --posture-noise``) and every angle with the std ``S``; the twin at its mirror image.
+  ``depth_profile.py --posture-noise``) and every angle with the std ``S``; the twin at its mirror image;
+- ``sampled<K>`` (``--samples K``): ``K`` postures drawn from the belief each frame (a state by its posterior,
+  then every feature from that state's Gaussian; the twin at each draw's mirror image), a pose's score the log
+  mean over the draws of the frame's tempered likelihood at one posture: the flows share a posture, as one body's
+  do, where the blob lets each flow take its own;
 - ``recovered<S>`` (``--recovered S``): each path at the posture the engine recovers when handed that path
   (the ``gt_base`` run along the true positions with the truth's or the twin's orientations), every angle with
   the std ``S`` rad, the rates by backward differences of the recovered angles, the base's velocities true
@@ -33,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import time
+import zlib
 from collections import defaultdict
 from functools import partial
 
@@ -43,7 +49,7 @@ from depth_profile import posture_points, recovered_features, true_features
 from harness.engine.features import ANGLES
 
 
-def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
+def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int = 0) -> dict:
     run, overrides = job
     from harness.engine.features import mirror_features
     from harness.engine.frame import observation_frames
@@ -71,7 +77,9 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
             posture_points(model, recovered_features(inputs, tracker, pos, q, f), recovered)
             for q, f in zip(poses, (true, mirror_features(true))))
     half = model.db.means_.shape[1] // 2        # a both-handed primitive's chain and its mirror image
-    margin = dict.fromkeys(["blob", *postures], 0.0)
+    sampled = f"sampled{samples}"
+    margin = dict.fromkeys(["blob", *postures] + ([sampled] if samples else []), 0.0)
+    rng = np.random.default_rng([run.config.seed, zlib.crc32(run.key.encode()), 1])
     angle_means, angle_vars = model.db.means_[c][:, ANGLES], model.db.covars_[c][:, ANGLES]
     errors, blob_vars = [], []
     started = False
@@ -92,6 +100,9 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
             dists = {"blob": (model.dists.mixtures(rows.reshape(1, -1) / rows.sum()),
                               model.dists.mixtures(mirrored.reshape(1, -1) / mirrored.sum()))}
             dists |= {name: (a[t], b[t]) for name, (a, b) in postures.items()}
+            if samples:
+                margin[sampled] += _sampled_margin(scorer, frame, model, rows.reshape(-1), samples, rng,
+                                                   [(q[t], pos[t]) for q in poses], cfg.n_eff_filter)
             for name, pair in dists.items():
                 score = [scorer.pose_log_likelihood(frame, q[t][None], pos[t][None], d, n_eff=cfg.n_eff_filter)[0]
                          for q, d in zip(poses, pair)]
@@ -105,17 +116,41 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None) -> dict:
                         "offset": rms(offset), "varying": rms(errors - offset)}}
 
 
+def _sampled_margin(scorer, frame, model, belief: np.ndarray, samples: int, rng: np.random.Generator, poses: list,
+                    n_eff: float) -> float:
+    """One frame's truth minus twin under ``samples`` postures drawn from the belief (a state by its posterior,
+    then every feature from that state's Gaussian), the twin at each draw's mirror image: each pose's score the
+    log mean over the draws of the frame's tempered joint likelihood at one posture (the flows share it)."""
+    from harness.engine.features import mirror_features
+    from harness.engine.transform import JointGaussians, state_point_distributions
+    from scipy.special import logsumexp
+
+    states = rng.choice(belief.size, size=samples, p=belief / belief.sum())
+    draws = model.db_means[states] + rng.standard_normal((samples, model.db_means.shape[1])) * np.sqrt(
+        model.db_covars[states])
+    score = []
+    for (quat, position), features in zip(poses, (draws, mirror_features(draws))):
+        dists = state_point_distributions(model.body, JointGaussians.from_features(features, np.zeros_like(features)),
+                                          model.points, model.spread)
+        ll = scorer.pose_log_likelihood(frame, np.repeat(quat[None], samples, 0), np.repeat(position[None], samples, 0),
+                                        dists, np.arange(samples), n_eff=n_eff)
+        score.append(logsumexp(ll) - np.log(samples))
+    return float(score[0] - score[1])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     dev_runs.add_arguments(ap)
     ap.add_argument("--offsets", type=float, nargs="*", default=[0.1, 0.2],
                     help="rad: std of the true angles' fixed offsets (and of every angle) to score at")
+    ap.add_argument("--samples", type=int, default=0, metavar="K",
+                    help="also score under K postures drawn from the belief each frame (module docstring)")
     ap.add_argument("--recovered", type=float, default=None, metavar="STD",
                     help="also score each path at the posture recovered along it, every angle with this std (rad)")
     args = ap.parse_args()
     runs = dev_runs.selected(args)
     t0 = time.perf_counter()
-    rows = dev_runs.map_runs(partial(_one, offsets=tuple(args.offsets), recovered=args.recovered), runs, args)
+    rows = dev_runs.map_runs(partial(_one, offsets=tuple(args.offsets), recovered=args.recovered, samples=args.samples), runs, args)
     modes = list(rows[0]["margin"])
     print("the truth's score minus its exact twin's over the clip (tempered nats): median over runs (share of runs "
           "the truth scores higher)")
