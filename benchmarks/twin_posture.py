@@ -2,7 +2,7 @@
 
     MUJOCO_GL=egl python benchmarks/twin_posture.py [--scenario scenarios/default.yaml] [--seed S]
         [--amount 0.0 0.4] [--limit N] [--jobs 2] [--set KEY=VALUE ...] [--offsets 0.1 0.2] [--samples K]
-        [--recovered STD]
+        [--recovered STD] [--plot PNG]
 
 For every run, every frame's flows are scored as the particles are weighed (``Scorer.pose_log_likelihood``, the
 flows' joint likelihood tempered by ``n_eff_filter``) at the true base pose and at its exact twin
@@ -41,6 +41,7 @@ import time
 import zlib
 from collections import defaultdict
 from functools import partial
+from pathlib import Path
 
 import numpy as np
 
@@ -143,6 +144,7 @@ def main() -> None:
     dev_runs.add_arguments(ap)
     ap.add_argument("--offsets", type=float, nargs="*", default=[0.1, 0.2],
                     help="rad: std of the true angles' fixed offsets (and of every angle) to score at")
+    ap.add_argument("--plot", default=None, metavar="PNG", help="also draw the per-class margins into this file")
     ap.add_argument("--samples", type=int, default=0, metavar="K",
                     help="also score under K postures drawn from the belief each frame (module docstring)")
     ap.add_argument("--recovered", type=float, default=None, metavar="STD",
@@ -172,6 +174,39 @@ def main() -> None:
                 cells.append(f"{np.median(v):8.1f} ({np.mean(v > 0):.2f})")
             print(f"  {name:13s} " + " ".join(f"{c:>15s}" for c in cells))
     print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s")
+    if args.plot:
+        plot(rows, args.plot)
+        print(f"wrote {args.plot}")
+
+
+def plot(rows: list[dict], path: str) -> None:
+    """Per condition a panel: per class, the median margin over the twin under each posture (a marker each)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    conditions = list(dict.fromkeys(r["condition"] for r in rows))
+    classes = sorted({r["class"] for r in rows})
+    # From the least posture knowledge to the most: the blob, the draws and recoveries, the offsets widest first.
+    rank = {"blob": 0, "true": 99}
+    modes = sorted(rows[0]["margin"], key=lambda m: rank.get(m, 50 - float(m[3:]) if m.startswith("off") else 1))
+    fig, axes = plt.subplots(1, len(conditions), figsize=(6 * len(conditions), 4), sharey=True, squeeze=False)
+    for ax, cond in zip(axes[0], conditions):
+        for j, m in enumerate(modes):
+            med = [np.median([r["margin"][m] for r in rows if r["condition"] == cond and r["class"] == c] or [np.nan])
+                   for c in classes]
+            ax.plot(np.arange(len(classes)) + 0.12 * (j - (len(modes) - 1) / 2), med, "o", label=m)
+        ax.axhline(0.0, color="grey", lw=0.8)
+        ax.set_xticks(range(len(classes)), classes, rotation=45, ha="right")
+        ax.set_title(cond)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0][0].set_ylabel("truth minus exact twin (nats, median)")
+    axes[0][0].legend(title="weighed at", fontsize=8)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100, metadata={"Software": None})
+    plt.close(fig)
 
 
 if __name__ == "__main__":
