@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -69,3 +70,28 @@ def tracker_for(inputs, overrides: dict):
         tracker.config = dataclasses.replace(tracker.config, **overrides)
         tracker.scorer = dataclasses.replace(tracker.scorer, config=tracker.config)
     return tracker
+
+
+@dataclass(frozen=True)
+class TruePrimitive:
+    """What a benchmark that scores along a run's true path needs: the run's inputs (observation and truth), its
+    tracker (``overrides`` applied), a scorer, the true primitive's index and a recursion that believes only it."""
+
+    inputs: object
+    tracker: object
+    scorer: object
+    primitive: int
+    recognizer: object
+
+
+def true_primitive(run, overrides: dict) -> TruePrimitive:
+    from harness.engine.recognition import Recognizer
+    from harness.engine.scoring import Scorer
+    from harness.evaluation import pipeline
+
+    inputs = pipeline.run_inputs(run)
+    tracker = tracker_for(inputs, overrides)
+    model, cfg = tracker.model, tracker.config
+    c = list(model.db.classes_).index(run.test_class)
+    return TruePrimitive(inputs, tracker, Scorer(model, cfg), c,
+                         Recognizer(model.db, cfg.start_spread, cfg.prune).restrict([c]))

@@ -54,18 +54,11 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
     run, overrides = job
     from harness.engine.features import mirror_features
     from harness.engine.frame import observation_frames
-    from harness.engine.recognition import Recognizer
-    from harness.engine.scoring import Scorer
     from harness.engine.track import twin
-    from harness.evaluation import pipeline
 
-    inputs = pipeline.run_inputs(run)
-    obs, truth = inputs.obs, inputs.truth
-    tracker = dev_runs.tracker_for(inputs, overrides)
-    model, cfg = tracker.model, tracker.config
-    scorer = Scorer(model, cfg)
-    c = list(model.db.classes_).index(run.test_class)
-    rec = Recognizer(model.db, cfg.start_spread, cfg.prune).restrict([c])
+    along = dev_runs.true_primitive(run, overrides)
+    inputs, tracker, scorer, c, rec = along.inputs, along.tracker, along.scorer, along.primitive, along.recognizer
+    obs, truth, model, cfg = inputs.obs, inputs.truth, tracker.model, tracker.config
     pos, quat = truth.base_pos_cam, truth.base_quat_cam
     poses = (quat, twin(quat))
     postures = {}
