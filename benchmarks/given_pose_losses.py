@@ -32,7 +32,8 @@ ones. For the lost runs of the first ``--base``, the gap (the winner minus the t
 split by body part with ``loss_causes.evidence_by_flow`` (ground-truth marker ids: a diagnosis only). Last, per
 class, how the base moves in the tested demonstrations beside the procedural performer's takes (24, seed 1), which
 the procedural database learned from: the net horizontal travel (m/s over the clip), and the base-frame forward
-velocity's 10-90% range and the vertical velocity's standard deviation over all frames (``motion_features``).
+velocity's 10-90% range and the vertical velocity's standard deviation over all frames (``motion_features``); and
+for the one-handed arm primitives where the acting hand goes (``hand_reach``).
 """
 
 from __future__ import annotations
@@ -200,8 +201,36 @@ def _one(job) -> dict:
                 gap[part] += float(d)
         row["by_part"] = gap
     row["travel"] = travel(inputs.motion)
+    if row["class"] in ARM_CLASSES:
+        row["hand"] = hand_reach(model.body, inputs.motion)
     row["base_velocity"] = motion_features(inputs.motion)[:, BASE_LINEAR].tolist()
     return row
+
+
+# The one-handed arm primitives (``realism.ACTING``'s arm classes), whose acting hand ``hand_reach`` follows.
+ARM_CLASSES = ("punch", "throw", "wave")
+
+
+def hand_reach(body, motion) -> tuple[float, float, float]:
+    """The acting hand of a one-handed primitive (``realism.acting_side``) against its shoulder (the humerus's
+    origin), in the base frame (x forward, z up): at the frame of its farthest forward reach, how far forward and
+    how high (m); and the highest it gets over the clip. MuJoCo's forward kinematics of the retargeted angles."""
+    import mujoco
+
+    from harness.motion.realism import acting_side
+
+    side = acting_side(motion) or "r"
+    model = body.model
+    data = mujoco.MjData(model)
+    hand, shoulder = model.body(side + "hand").id, model.body(side + "humerus").id
+    offsets = []
+    for qpos in motion.qpos:
+        data.qpos[:] = np.concatenate([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], qpos[7:]])
+        mujoco.mj_kinematics(model, data)
+        offsets.append(data.xpos[hand] - data.xpos[shoulder])
+    offsets = np.array(offsets)
+    far = int(offsets[:, 0].argmax())
+    return float(offsets[far, 0]), float(offsets[far, 2]), float(offsets[:, 2].max())
 
 
 def travel(motion) -> float:
@@ -275,6 +304,21 @@ def main() -> None:
         print(f"  {c:>12s} travel {np.median([r['travel'] for r in mine]):5.2f} / {np.median([travel(m) for m in proc]):5.2f}"
               f"   forward {lo:5.2f} to {hi:5.2f} / {plo:5.2f} to {phi:5.2f}"
               f"   vertical {tested[:, 2].std():4.2f} / {made[:, 2].std():4.2f}")
+    arms = [c for c in labels if c in ARM_CLASSES]
+    if arms:
+        from harness.body.model import BodyModel
+
+        body = BodyModel.load()
+        print("\nthe acting hand against its shoulder, tested demonstrations / procedural takes (median, m): at its "
+              "farthest forward reach how far forward and how high, and the highest over the clip")
+        for c in arms:
+            tested = np.array([r["hand"] for r in rows if r["class"] == c])
+            made = np.array([hand_reach(body, m) for m in procedural_set(c, 24, 1)])
+            t, m = np.median(tested, axis=0), np.median(made, axis=0)
+            print(f"  {c:>12s} forward {t[0]:.2f} / {m[0]:.2f}   height there {t[1]:+.2f} / {m[1]:+.2f} "
+                  f"(10-90% {np.percentile(tested[:, 1], 10):+.2f} to {np.percentile(tested[:, 1], 90):+.2f} / "
+                  f"{np.percentile(made[:, 1], 10):+.2f} to {np.percentile(made[:, 1], 90):+.2f})   highest "
+                  f"{t[2]:+.2f} / {m[2]:+.2f}")
     print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s")
 
 
