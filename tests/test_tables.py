@@ -229,3 +229,36 @@ def test_a_capture_report_says_which_classes_each_condition_tested():
     text = "\n".join(_capture_sections(scenario, runs, {"_confusion_matrices": conf}))
     assert "`base`: walk (2), kick (1); not tested: squat (performed by one subject only)" in text
     assert "| walk | 1 | 1 | 0 |" in text and "Confusion: `base`, `joint_space`" in text
+
+
+def test_pose_error_split_against_a_built_case(tmp_path):
+    """A camera-frame error made of the rotation alone correlates 1 with it and not with a depth error drawn
+    apart; the near and far runs are those within 20 deg and beyond 45 deg; given-pose methods are left out;
+    the table is written with the others."""
+    rows = run_scenario(parse_scenario(TINY), tmp_path / "tiny", fake_run, progress=False)
+    rng = np.random.default_rng(11)
+    heading = rng.uniform(0.0, 180.0, len(rows))
+    rows = rows.assign(heading_err_deg=heading, base_rot_err_deg=heading + 5.0,
+                       base_depth_err_m=rng.uniform(0.0, 1.0, len(rows)),
+                       mpjpe_cam_mm=100.0 + 2.0 * heading, mpjpe_pose_mm=100.0)
+    table = tables.pose_error_split(rows)
+    assert set(table["method"]) == {"full"}                  # gt_base and no_database are handed the pose
+    cond = rows["condition"].iloc[0]
+    g = rows[(rows["condition"] == cond) & (rows["method"] == "full")]
+    cell = table[(table["condition"] == cond) & (table["method"] == "full")].iloc[0]
+    near, far = g[g["heading_err_deg"] <= 20.0], g[g["heading_err_deg"] > 45.0]
+    assert cell["n"] == len(g) and cell["corr_rotation"] == pytest.approx(1.0)
+    assert abs(cell["corr_depth"]) == pytest.approx(abs(np.corrcoef(g["mpjpe_cam_mm"], g["base_depth_err_m"])[0, 1]))
+    assert cell["n_near"] == len(near) and cell["n_far"] == len(far)
+    assert table["n_near"].sum() > 0 and table["n_far"].sum() > 0
+    both = table[(table["n_near"] > 0)].iloc[0]
+    g = rows[(rows["condition"] == both["condition"]) & (rows["method"] == "full")]
+    assert both["mpjpe_cam_near"] == pytest.approx(g[g["heading_err_deg"] <= 20.0]["mpjpe_cam_mm"].mean())
+    assert cell["mpjpe_cam_far"] == pytest.approx(100.0 + 2.0 * far["heading_err_deg"].mean())
+    assert cell["mpjpe_cam_mm"] == pytest.approx(g["mpjpe_cam_mm"].mean())
+    assert tables.pose_error_split(rows.drop(columns="heading_err_deg")).empty
+    tables.write_tables(rows, tmp_path / "out", ["markers.count", "occluders.amount"], [], n_boot=50)
+    written = pd.read_csv(tmp_path / "out" / "pose_error_split.csv")
+    assert len(written) == len(table)
+    make_report(parse_scenario(TINY), tmp_path / "tiny", rows, plots=False)
+    assert "## What the camera-frame error is made of" in (tmp_path / "tiny" / "report.md").read_text()

@@ -102,6 +102,7 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
             "(bins in `reliability.csv`; all conditions pooled, the number of runs written at each bin)\n",
         ]
     parts += _view_section(figures)
+    parts += _pose_error_section(tables)
     worst = tables["worst_runs"]
     if len(worst):
         parts += ["## The three worst runs of `full`\n",
@@ -221,6 +222,22 @@ def _view_section(figures: list[str]) -> list[str]:
             "pose that no flow can tell apart: the gap between the two lines is the information limit, what "
             "remains is the tracker's own error (numbers in `by_view.csv`).\n",
             *_section_plots(figures, ("by_view",))]
+
+
+def _pose_error_section(tables: dict) -> list[str]:
+    """What the camera-frame joint error is made of (``tables.pose_error_split``), if any method estimates the
+    base pose."""
+    split = tables.get("pose_error_split")
+    if split is None or not len(split):
+        return []
+    return ["## What the camera-frame error is made of\n",
+            "`mpjpe_cam_mm` subtracts each skeleton's root, so the baselink's orientation enters it and its position "
+            "does not. Per condition and method that estimates the base pose: the correlation over runs of "
+            "`mpjpe_cam_mm` with the baselink's rotation error (`corr_rotation`) and with its depth error "
+            "(`corr_depth`), and the mean `mpjpe_cam_mm` of the runs whose heading error is within 20 deg "
+            "(`n_near`, `mpjpe_cam_near`) and beyond 45 deg (`n_far`, `mpjpe_cam_far`); `mpjpe_pose_mm` is the "
+            "posture alone.\n",
+            markdown(split)]
 
 
 def _video_name(run_key: str) -> str:

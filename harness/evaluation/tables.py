@@ -337,11 +337,46 @@ def by_view(rows: pd.DataFrame, n_boot: int = N_BOOT, seed: int = 0) -> pd.DataF
     return table
 
 
+# The heading error (deg) of the runs whose camera-frame joint error ``pose_error_split`` shows apart: issue 21's
+# heading target, and beyond its quarter turn.
+HEADING_NEAR_DEG, HEADING_FAR_DEG = 20.0, 45.0
+
+
+def pose_error_split(rows: pd.DataFrame) -> pd.DataFrame:
+    """What the camera-frame joint error is made of, per condition and method that estimates the base pose:
+    mean ``mpjpe_cam_mm`` and ``mpjpe_pose_mm`` (the posture alone); the Pearson correlation over runs of
+    ``mpjpe_cam_mm`` with the baselink's rotation error and with its depth error (``mpjpe_cam_mm`` subtracts
+    the root, so the baselink's position does not enter it, its orientation does); and the runs whose mean
+    heading error is within ``HEADING_NEAR_DEG`` and beyond ``HEADING_FAR_DEG``, with their mean
+    ``mpjpe_cam_mm``. Empty for rows without these columns."""
+    cols = ["condition", "method", "n", "mpjpe_cam_mm", "mpjpe_pose_mm", "corr_rotation", "corr_depth",
+            "n_near", "mpjpe_cam_near", "n_far", "mpjpe_cam_far"]
+    need = ("mpjpe_cam_mm", "mpjpe_pose_mm", "base_rot_err_deg", "base_depth_err_m", "heading_err_deg")
+    if not len(rows) or any(c not in rows for c in need):
+        return pd.DataFrame(columns=cols)
+    out = []
+    for (cond, method), g in rows.groupby(["condition", "method"], sort=False):
+        if method in METHODS and "heading_err_deg" in METHODS[method].given:
+            continue
+        x = g[list(need)].apply(pd.to_numeric, errors="coerce").dropna()
+        if len(x) < 2:
+            continue
+        near, far = x[x["heading_err_deg"] <= HEADING_NEAR_DEG], x[x["heading_err_deg"] > HEADING_FAR_DEG]
+        out.append({"condition": cond, "method": method, "n": len(x), "mpjpe_cam_mm": x["mpjpe_cam_mm"].mean(),
+                    "mpjpe_pose_mm": x["mpjpe_pose_mm"].mean(),
+                    "corr_rotation": x["mpjpe_cam_mm"].corr(x["base_rot_err_deg"]),
+                    "corr_depth": x["mpjpe_cam_mm"].corr(x["base_depth_err_m"]),
+                    "n_near": len(near), "mpjpe_cam_near": near["mpjpe_cam_mm"].mean() if len(near) else np.nan,
+                    "n_far": len(far), "mpjpe_cam_far": far["mpjpe_cam_mm"].mean() if len(far) else np.nan})
+    return _order(pd.DataFrame(out, columns=cols), []) if out else pd.DataFrame(columns=cols)
+
+
 def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str],
                  n_boot: int = N_BOOT, seed: int = 0) -> dict[str, pd.DataFrame]:
     """Write ``summary``, ``headline``, ``per_class``, ``class_accuracy``, ``answers``, ``confusion``,
     ``paired_tests``, ``accuracy_over_time``,
-    ``heading_over_time``, ``worst_runs``, ``calibration``, ``reliability`` and ``by_view`` as CSV and Markdown,
+    ``heading_over_time``, ``worst_runs``, ``calibration``, ``reliability``, ``by_view`` and ``pose_error_split``
+    as CSV and Markdown,
     and ``metrics.json`` (pooled metrics), under ``out_dir``. Returns the tables by name."""
     out_dir = Path(out_dir)
     summ = summary(rows, swept, n_boot, seed)
@@ -357,7 +392,7 @@ def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], clas
               "accuracy_over_time": accuracy_over_time(rows), "heading_over_time": heading_over_time(rows),
               "worst_runs": worst_runs(rows),
               "calibration": calibration_table(rows, swept), "reliability": reliability_table(rows),
-              "by_view": by_view(rows, n_boot, seed)}
+              "by_view": by_view(rows, n_boot, seed), "pose_error_split": pose_error_split(rows)}
     conf = confusion(rows, classes)
     long = [{"condition": c, "method": m, "true": t, "predicted": p, "count": int(mat.loc[t, p])}
             for (c, m), mat in conf.items() for t in mat.index for p in mat.columns]
