@@ -337,8 +337,8 @@ def by_view(rows: pd.DataFrame, n_boot: int = N_BOOT, seed: int = 0) -> pd.DataF
     return table
 
 
-# The heading error (deg) of the runs whose camera-frame joint error ``pose_error_split`` shows apart: issue 21's
-# heading target, and beyond its quarter turn.
+# The heading errors (deg) that split the runs in ``pose_error_split``: issue 21's heading target, and an error
+# more than twice it.
 HEADING_NEAR_DEG, HEADING_FAR_DEG = 20.0, 45.0
 
 
