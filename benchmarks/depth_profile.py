@@ -36,7 +36,7 @@ from functools import partial
 import numpy as np
 
 import dev_runs
-from harness.engine.features import ANGLE_RATES, ANGLES
+from harness.engine.features import ANGLE_RATES, ANGLES, motion_features
 
 SCALES = np.array([0.8, 0.9, 1.0, 1.1, 1.2, 1.35, 1.5])
 OFFSETS_M = np.linspace(-0.4, 0.4, 17)
@@ -85,11 +85,17 @@ def _one(job, position_scale: float = 1.0, top_state: bool = False, posture: str
             "offset_m": float(OFFSETS_M[best[0]]), "pitch_deg": float(PITCHES_DEG[best[1]])}
 
 
+def belief_rows(rec, c: int) -> np.ndarray:
+    """``(C, S)`` the belief ``rec``'s posterior over primitive ``c``'s active states, zero elsewhere."""
+    rows = np.where(rec.active(), rec.state_posterior, 0.0)
+    rows[np.arange(len(rows)) != c] = 0.0
+    return rows
+
+
 def _belief_blob(model, rec, c: int, top_state: bool):
     """The moment-matched blob of primitive ``c``'s active states under the belief ``rec`` (or its most probable
     state alone, ``top_state``)."""
-    rows = np.where(rec.active(), rec.state_posterior, 0.0)
-    rows[np.arange(len(rows)) != c] = 0.0
+    rows = belief_rows(rec, c)
     if top_state:
         rows = (np.arange(rows.size) == rows.argmax()).astype(float).reshape(rows.shape)
     return model.dists.mixtures(rows.reshape(1, -1) / rows.sum())
@@ -117,16 +123,13 @@ def recovered_features(inputs, tracker, positions: np.ndarray, quats: np.ndarray
 
 
 def true_features(run, inputs, noise: float = 0.0) -> np.ndarray:
-    """``(T, 106)`` the true motion's features (``harness.engine.features``: the angles, their rates and the base's
-    velocities, backward differences), every angle off by a Gaussian offset of std ``noise`` rad: one offset per
-    angle for the run (a posture that is off, not one that jitters), seeded by the run's seed and key."""
-    from harness.motion.motion import velocities_of
-
-    truth = inputs.truth
-    vel = velocities_of(truth.qpos, inputs.obs.fps, "backward")
+    """``(T, 106)`` the true motion's features (``features.motion_features`` of the performed motion), every angle
+    off by a Gaussian offset of std ``noise`` rad: one offset per angle for the run (a posture that is off, not one
+    that jitters), seeded by the run's seed and key."""
+    features = motion_features(inputs.motion)
     rng = np.random.default_rng([run.config.seed, zlib.crc32(run.key.encode())])
-    angles = truth.qpos[:, 7:] + rng.normal(0.0, noise, truth.qpos.shape[1] - 7)
-    return np.concatenate([angles, vel.angles, vel.base_linear, vel.base_angular], axis=1)
+    features[:, ANGLES] += rng.normal(0.0, noise, features[:, ANGLES].shape[1])
+    return features
 
 
 def posture_points(model, features: np.ndarray, angle_std: float) -> list:

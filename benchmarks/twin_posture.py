@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 import dev_runs
-from depth_profile import posture_points, recovered_features, true_features
+from depth_profile import belief_rows, posture_points, recovered_features, true_features
 from harness.engine.features import ANGLES
 
 
@@ -84,8 +84,7 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
         started = True
         rec.predict()
         if frame.has_flows:
-            rows = np.where(rec.active(), rec.state_posterior, 0.0)
-            rows[np.arange(len(rows)) != c] = 0.0
+            rows = belief_rows(rec, c)
             gamma = rows[c] / rows[c].sum()
             mean = gamma @ angle_means
             errors.append(truth.qpos[t, 7:] - mean)
