@@ -211,10 +211,11 @@ def _one(job) -> dict:
 ARM_CLASSES = ("punch", "throw", "wave")
 
 
-def hand_reach(body, motion) -> tuple[float, float, float]:
+def hand_reach(body, motion) -> tuple[float, float, float, float]:
     """The acting hand of a one-handed primitive (``realism.acting_side``) against its shoulder (the humerus's
     origin), in the base frame (x forward, z up): at the frame of its farthest forward reach, how far forward and
-    how high (m); and the highest it gets over the clip. MuJoCo's forward kinematics of the retargeted angles."""
+    how high (m); the highest it gets over the clip; and its fastest speed against the shoulder (m/s, between
+    frames). MuJoCo's forward kinematics of the retargeted angles."""
     import mujoco
 
     from harness.motion.realism import acting_side
@@ -230,7 +231,8 @@ def hand_reach(body, motion) -> tuple[float, float, float]:
         offsets.append(data.xpos[hand] - data.xpos[shoulder])
     offsets = np.array(offsets)
     far = int(offsets[:, 0].argmax())
-    return float(offsets[far, 0]), float(offsets[far, 2]), float(offsets[:, 2].max())
+    speed = np.linalg.norm(np.diff(offsets, axis=0), axis=1) * motion.fps
+    return float(offsets[far, 0]), float(offsets[far, 2]), float(offsets[:, 2].max()), float(speed.max())
 
 
 def travel(motion) -> float:
@@ -310,7 +312,8 @@ def main() -> None:
 
         body = BodyModel.load()
         print("\nthe acting hand against its shoulder, tested demonstrations / procedural takes (median, m): at its "
-              "farthest forward reach how far forward and how high, and the highest over the clip")
+              "farthest forward reach how far forward and how high, the highest over the clip, and the fastest "
+              "(m/s)")
         for c in arms:
             tested = np.array([r["hand"] for r in rows if r["class"] == c])
             made = np.array([hand_reach(body, m) for m in procedural_set(c, 24, 1)])
@@ -318,7 +321,7 @@ def main() -> None:
             print(f"  {c:>12s} forward {t[0]:.2f} / {m[0]:.2f}   height there {t[1]:+.2f} / {m[1]:+.2f} "
                   f"(10-90% {np.percentile(tested[:, 1], 10):+.2f} to {np.percentile(tested[:, 1], 90):+.2f} / "
                   f"{np.percentile(made[:, 1], 10):+.2f} to {np.percentile(made[:, 1], 90):+.2f})   highest "
-                  f"{t[2]:+.2f} / {m[2]:+.2f}")
+                  f"{t[2]:+.2f} / {m[2]:+.2f}   fastest {t[3]:.1f} / {m[3]:.1f}")
     print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s")
 
 
