@@ -17,6 +17,10 @@ each scale's median score against the true depth's (tempered nats over the clip)
 the covariances' width); ``--top-state`` weighs under the belief's most probable state alone instead of the
 moment-matched blob of its states.
 
+``--posture true-angles|true-motion|true-rates|true-base`` weighs under the belief's blob as one Gaussian over the
+features (the states' moments in joint space) with the true angles, the true rates and base velocities, the rates
+alone or the base velocities alone put in exactly (no variance): which of the posture's parts carries the depth.
+
 ``--posture true|recovered`` weighs at one posture per frame instead of the belief's states: the true angles and
 rates (``--posture-noise S``: each angle off by a Gaussian offset of std ``S`` rad, one per angle and run, seeded),
 or the angles the engine recovers handed the true base pose scaled in depth by ``--recovered-at K`` (the
@@ -36,12 +40,15 @@ from functools import partial
 import numpy as np
 
 import dev_runs
-from harness.engine.features import ANGLE_RATES, ANGLES, motion_features
+from harness.engine.features import ANGLE_RATES, ANGLES, BASE_ANGULAR, BASE_LINEAR, motion_features
 
 SCALES = np.array([0.8, 0.9, 1.0, 1.1, 1.2, 1.35, 1.5])
 OFFSETS_M = np.linspace(-0.4, 0.4, 17)
 PITCHES_DEG = np.arange(-20.0, 21.0, 5.0)
 TRUE = int(np.flatnonzero(SCALES == 1.0)[0])
+# The feature groups ``--posture true-angles`` ... take from the truth (``part_features``).
+PARTS = {"true-angles": (ANGLES,), "true-motion": (ANGLE_RATES, BASE_LINEAR, BASE_ANGULAR),
+         "true-rates": (ANGLE_RATES,), "true-base": (BASE_LINEAR, BASE_ANGULAR)}
 
 
 def _one(job, position_scale: float = 1.0, top_state: bool = False, posture: str = "belief", posture_std: float = 0.0,
@@ -54,8 +61,10 @@ def _one(job, position_scale: float = 1.0, top_state: bool = False, posture: str
     inputs, tracker, scorer, c, rec = along.inputs, along.tracker, along.scorer, along.primitive, along.recognizer
     obs, truth, model, cfg = inputs.obs, inputs.truth, tracker.model, tracker.config
     pos, quat = truth.base_pos_cam, truth.base_quat_cam
-    postures = None if posture == "belief" else _postures(run, inputs, tracker, posture, posture_std,
-                                                          posture_noise, recovered_at)
+    by_belief = posture == "belief" or posture in PARTS      # weighed under the belief, which then runs
+    postures = None if by_belief else _postures(run, inputs, tracker, posture, posture_std, posture_noise,
+                                                recovered_at)
+    true = true_features(run, inputs) if posture in PARTS else None
     S, D, P = len(SCALES), len(OFFSETS_M), len(PITCHES_DEG)
     half = np.deg2rad(PITCHES_DEG) / 2
     pitch = np.stack([np.cos(half), np.sin(half), np.zeros(P), np.zeros(P)], axis=1)      # about camera x
@@ -68,15 +77,19 @@ def _one(job, position_scale: float = 1.0, top_state: bool = False, posture: str
         if not (started or frame.has_flows):
             continue
         started = True
-        if postures is None:        # the belief is what is weighed under, and only then
+        if by_belief:
             rec.predict()
         if frame.has_flows:
-            dists = _belief_blob(model, rec, c, top_state) if postures is None else postures[t]
+            if posture in PARTS:
+                dists = posture_points(model, *part_features(model, belief_rows(rec, c)[c], c, true[t],
+                                                             PARTS[posture]))[0]
+            else:
+                dists = _belief_blob(model, rec, c, top_state) if postures is None else postures[t]
             dists = dataclasses.replace(dists, pos_cov=dists.pos_cov * position_scale)
             p = (SCALES[:, None, None, None] * pos[t] + offsets).reshape(-1, 3)
             q = geometry.multiply(pitches, np.broadcast_to(quat[t], (S * D * P, 4)))
             total += scorer.pose_log_likelihood(frame, q, p, dists, n_eff=cfg.n_eff_filter).reshape(S, D, P)
-        if postures is None:
+        if by_belief:
             scorer.recognise(frame, [rec], pos[t][None], quat[t][None])
     flat = total.reshape(S, -1)
     best = np.unravel_index(flat[int(flat.max(axis=1).argmax())].argmax(), (D, P))
@@ -132,15 +145,32 @@ def true_features(run, inputs, noise: float = 0.0) -> np.ndarray:
     return features
 
 
-def posture_points(model, features: np.ndarray, angle_std: float) -> list:
+def posture_points(model, features: np.ndarray, angle_std: float | np.ndarray) -> list:
     """Per frame of ``features`` ``(T, 106)`` the model points' distributions at that one posture: every angle
-    with the std ``angle_std`` rad (0: the surface patch alone), the rates and the base's velocities exact."""
+    with the std ``angle_std`` rad (0: the surface patch alone), the rates and the base's velocities exact; or
+    with ``angle_std`` the features' variances ``(T, 106)``."""
     from harness.engine.transform import JointGaussians, state_point_distributions
 
-    var = np.zeros(features.shape[1])
-    var[ANGLES] = angle_std**2
-    return [state_point_distributions(model.body, JointGaussians.from_features(f[None], var[None]), model.points,
-                                      model.spread) for f in features]
+    if np.ndim(angle_std) == 0:
+        var = np.zeros(features.shape)
+        var[:, ANGLES] = angle_std**2
+    else:
+        var = np.asarray(angle_std, dtype=float)
+    return [state_point_distributions(model.body, JointGaussians.from_features(f[None], v[None]), model.points,
+                                      model.spread) for f, v in zip(features, var)]
+
+
+def part_features(model, weights: np.ndarray, c: int, true: np.ndarray, groups: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """``(1, 106)`` means and variances: primitive ``c``'s states under ``weights`` (its states' posterior)
+    moment-matched in joint space, with the feature ``groups`` (index arrays) set to the ``true`` features and no
+    variance."""
+    gamma = weights / weights.sum()
+    means, covars = model.db.means_[c], model.db.covars_[c]
+    mean = gamma @ means
+    var = gamma @ (covars + (means - mean) ** 2)
+    for group in groups:
+        mean[group], var[group] = true[group], 0.0
+    return mean[None], var[None]
 
 
 def main() -> None:
@@ -148,7 +178,7 @@ def main() -> None:
     dev_runs.add_arguments(ap)
     ap.add_argument("--position-scale", type=float, default=1.0, help="the weighing's position covariances x this")
     ap.add_argument("--top-state", action="store_true", help="the belief's most probable state instead of its blob")
-    ap.add_argument("--posture", choices=["belief", "true", "recovered"], default="belief",
+    ap.add_argument("--posture", choices=["belief", "true", "recovered", *PARTS], default="belief",
                     help="weigh at one posture per frame (module docstring)")
     ap.add_argument("--posture-std", type=float, default=0.0, help="rad: every angle's std at that posture")
     ap.add_argument("--posture-noise", type=float, default=0.0, help="rad: std of a fixed offset on each true angle")

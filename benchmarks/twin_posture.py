@@ -22,7 +22,13 @@ each at a posture:
 - ``recovered<S>`` (``--recovered S``): each path at the posture the engine recovers when handed that path
   (the ``gt_base`` run along the true positions with the truth's or the twin's orientations), every angle with
   the std ``S`` rad, the rates by backward differences of the recovered angles, the base's velocities true
-  (the twin's mirrored).
+  (the twin's mirrored);
+- with ``--parts``, which of the features the ``true`` posture knows carry the margin: the belief's blob as one
+  Gaussian over the features (``feature_blob``: the states' moments in joint space, carried to the points as one
+  state; the engine moment-matches at the points instead) with one group of features replaced by the truth's
+  (exact, no variance): ``true-angles``, ``true-motion`` (the rates and the base's velocities), ``true-rates``,
+  ``true-base`` (the base's linear and angular velocities; ``depth_profile.PARTS``); the twin at the mirror image
+  of the same features.
 
 Summed over the clip, the truth's score minus the twin's is the twin's *margin* (tempered nats): printed per
 condition and class as the median over runs and the share of runs in which the truth scores higher. Also per
@@ -46,11 +52,11 @@ from pathlib import Path
 import numpy as np
 
 import dev_runs
-from depth_profile import belief_rows, posture_points, recovered_features, true_features
+from depth_profile import PARTS, belief_rows, part_features, posture_points, recovered_features, true_features
 from harness.engine.features import ANGLES
 
 
-def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int = 0) -> dict:
+def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int = 0, parts: bool = False) -> dict:
     run, overrides = job
     from harness.engine.features import mirror_features
     from harness.engine.frame import observation_frames
@@ -61,18 +67,19 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
     obs, truth, model, cfg = inputs.obs, inputs.truth, tracker.model, tracker.config
     pos, quat = truth.base_pos_cam, truth.base_quat_cam
     poses = (quat, twin(quat))
+    true = true_features(run, inputs)
     postures = {}
     for name, noise in [("true", 0.0)] + [(f"off{s:g}", s) for s in offsets]:
         features = true_features(run, inputs, noise)
         postures[name] = (posture_points(model, features, noise), posture_points(model, mirror_features(features), noise))
     if recovered is not None:       # the twin's base velocities are the true ones mirrored
-        true = true_features(run, inputs)
         postures[f"recovered{recovered:g}"] = tuple(
             posture_points(model, recovered_features(inputs, tracker, pos, q, f), recovered)
             for q, f in zip(poses, (true, mirror_features(true))))
     half = model.db.means_.shape[1] // 2        # a both-handed primitive's chain and its mirror image
     sampled = f"sampled{samples}"
-    margin = dict.fromkeys(["blob", *postures] + ([sampled] if samples else []), 0.0)
+    part_modes = (["feature_blob", *PARTS] if parts else [])
+    margin = dict.fromkeys(["blob", *postures] + ([sampled] if samples else []) + part_modes, 0.0)
     rng = np.random.default_rng([run.config.seed, zlib.crc32(run.key.encode()), 1])
     angle_means, angle_vars = model.db.means_[c][:, ANGLES], model.db.covars_[c][:, ANGLES]
     errors, blob_vars = [], []
@@ -93,6 +100,8 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
             dists = {"blob": (model.dists.mixtures(rows.reshape(1, -1) / rows.sum()),
                               model.dists.mixtures(mirrored.reshape(1, -1) / mirrored.sum()))}
             dists |= {name: (a[t], b[t]) for name, (a, b) in postures.items()}
+            if parts:
+                dists |= _part_blobs(model, rows[c], c, true[t])
             if samples:
                 margin[sampled] += _sampled_margin(scorer, frame, model, rows.reshape(-1), samples, rng,
                                                    [(q[t], pos[t]) for q in poses], cfg.n_eff_filter)
@@ -107,6 +116,21 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, "margin": margin,
             "posture": {"blob_std": rms(np.sqrt(np.array(blob_vars)[:, moving])), "error": rms(errors),
                         "offset": rms(offset), "varying": rms(errors - offset)}}
+
+
+def _part_blobs(model, weights: np.ndarray, c: int, true: np.ndarray) -> dict:
+    """``--parts``' pairs (truth, twin) of point distributions: primitive ``c``'s states under ``weights``
+    moment-matched in joint space, as is (``feature_blob``) and with each of ``depth_profile.PARTS``' feature
+    groups set to the ``true`` features (``part_features``); the twin at the mirror image of each."""
+    from harness.engine.features import mirror_features
+
+    out = {}
+    for name, groups in {"feature_blob": (), **PARTS}.items():
+        mean, var = part_features(model, weights, c, true, groups)
+        # The mirror image permutes the features and flips some signs: a variance takes the permutation alone.
+        out[name] = (posture_points(model, mean, var)[0],
+                     posture_points(model, mirror_features(mean), np.abs(mirror_features(var)))[0])
+    return out
 
 
 def _sampled_margin(scorer, frame, model, belief: np.ndarray, samples: int, rng: np.random.Generator, poses: list,
@@ -141,10 +165,13 @@ def main() -> None:
                     help="also score under K postures drawn from the belief each frame (module docstring)")
     ap.add_argument("--recovered", type=float, default=None, metavar="STD",
                     help="also score each path at the posture recovered along it, every angle with this std (rad)")
+    ap.add_argument("--parts", action="store_true",
+                    help="also score the belief's blob with the true angles, motion, rates or base velocity")
     args = ap.parse_args()
     runs = dev_runs.selected(args)
     t0 = time.perf_counter()
-    rows = dev_runs.map_runs(partial(_one, offsets=tuple(args.offsets), recovered=args.recovered, samples=args.samples), runs, args)
+    rows = dev_runs.map_runs(partial(_one, offsets=tuple(args.offsets), recovered=args.recovered, samples=args.samples,
+                                      parts=args.parts), runs, args)
     modes = list(rows[0]["margin"])
     print("the truth's score minus its exact twin's over the clip (tempered nats): median over runs (share of runs "
           "the truth scores higher)")
