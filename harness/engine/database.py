@@ -4,10 +4,11 @@ Each primitive ``c`` is an HMM with ``K`` states; state ``k`` emits the feature 
 ``f = [theta, theta_dot, v, omega]`` (see ``features``) from ``N(mean[c, k], diag(covar[c, k]))``.
 Transitions go from a state to itself or to the next one (left-to-right); cyclic primitives (walk, run, ...)
 start with a transition from the last state back to the first, which Baum-Welch keeps only if demonstrations
-wrap: cut into ``K`` segments each, they end in the last state, and the wrap is learned to zero. Training is Baum-Welch (hmmlearn) from several
-demonstrations, initialised by cutting every demonstration into ``K`` equal time segments, which keeps the
-states ordered in time and makes EM deterministic; every variance keeps a per-feature floor (the human floor,
-``variance_floor``), and a demonstration trains only the features it measures (``training``).
+wrap: cut into ``K`` segments each, they end in the last state, and the wrap is learned to zero. Training is
+Baum-Welch (hmmlearn) from several demonstrations, initialised by cutting every demonstration into ``K`` equal
+time segments, which keeps the states ordered in time and makes EM deterministic; every variance keeps a
+per-feature floor (the human floor, ``variance_floor``), and a demonstration trains only the features it
+measures (``training``).
 
 **Both hands** (``mirrored``, the default). A demonstrator performs a one-sided primitive with one side, but a
 test performer may use the other, and the tracker's twin pose sees every body mirrored. So each primitive's
@@ -61,9 +62,10 @@ class MotionDatabase:
     """One HMM per primitive over joint-space features.
 
     Hyperparameters: ``n_states`` (K), ``cyclic`` (names of primitives whose last state starts with a wrap to the
-    first, module docstring; the data source knows them, e.g. ``harness.motion.performer.CYCLIC``), ``n_iter`` (Baum-Welch iterations),
-    ``mirrored`` (each HMM also holds its mirror-image chain: ``S = 2K`` states, module docstring; else ``S = K``),
-    ``floor`` (``(106,)`` variance floor per feature, kept by every M-step; default ``variance_floor()``).
+    first, module docstring; the data source knows them, e.g. ``harness.motion.performer.CYCLIC``), ``n_iter``
+    (Baum-Welch iterations), ``mirrored`` (each HMM also holds its mirror-image chain: ``S = 2K`` states, module
+    docstring; else ``S = K``), ``floor`` (``(106,)`` variance floor per feature, kept by every M-step; default
+    ``variance_floor()``).
     Learned (after ``fit``): ``classes_`` (C,), ``cyclic_`` (C,) bool (whether each primitive's HMM started with
     a wrap), ``means_`` (C, S, 106), ``covars_`` (C, S, 106) diagonal variances, ``transmat_`` (C, S, S),
     ``startprob_`` (C, S), ``fps_``. Users of the HMMs take ``S`` from the arrays, not from ``n_states``.
