@@ -231,6 +231,39 @@ def test_a_capture_report_says_which_classes_each_condition_tested():
     assert "| walk | 1 | 1 | 0 |" in text and "Confusion: `base`, `joint_space`" in text
 
 
+def test_heading_spread_against_a_built_case(tmp_path):
+    """Mean, median, the share within 20 deg and the share settled on the twin by hand; the mean over the other
+    runs leaves the twins out; given-pose methods are left out; the table is written, the report shows it and
+    the plot is drawn, and neither is made without the heading columns."""
+    from harness.evaluation.plots import plot_heading_spread
+
+    rows = run_scenario(parse_scenario(TINY), tmp_path / "tiny", fake_run, progress=False)
+    rng = np.random.default_rng(12)
+    heading = rng.uniform(0.0, 180.0, len(rows))
+    # Up to the twin, a run beyond 135 deg is within 45 deg; one at 90-135 deg is a quarter turn, not the twin.
+    twin = np.where(heading > 135.0, 180.0 - heading, np.minimum(heading, 60.0))
+    rows = rows.assign(heading_err_deg=heading, heading_err_twin_deg=twin)
+    table = tables.heading_spread(rows)
+    assert set(table["method"]) == {"full"}                  # gt_base and no_database are handed the pose
+    for _, cell in table.iterrows():
+        g = rows[(rows["condition"] == cell["condition"]) & (rows["method"] == "full")]
+        h = g["heading_err_deg"].to_numpy()
+        assert cell["n"] == len(g)
+        assert cell["heading_mean"] == pytest.approx(h.mean()) and cell["heading_median"] == pytest.approx(np.median(h))
+        assert cell["within_20"] == pytest.approx(np.mean(h <= 20.0))
+        assert cell["on_twin"] == pytest.approx(np.mean(h > 135.0))
+        if (h <= 135.0).any():
+            assert cell["heading_mean_not_twin"] == pytest.approx(h[h <= 135.0].mean())
+    assert (table["on_twin"] > 0).any() and (table["on_twin"] < 1).any()
+    assert tables.heading_spread(rows.drop(columns="heading_err_twin_deg")).empty
+    tables.write_tables(rows, tmp_path / "out", ["markers.count", "occluders.amount"], [], n_boot=50)
+    assert len(pd.read_csv(tmp_path / "out" / "heading_spread.csv")) == len(table)
+    make_report(parse_scenario(TINY), tmp_path / "tiny", rows, plots=False)
+    assert "## How the heading errors spread" in (tmp_path / "tiny" / "report.md").read_text()
+    assert plot_heading_spread(rows, tmp_path / "spread.png") and (tmp_path / "spread.png").stat().st_size > 0
+    assert not plot_heading_spread(rows.drop(columns="heading_err_deg"), tmp_path / "none.png")
+
+
 def test_pose_error_split_against_a_built_case(tmp_path):
     """A camera-frame error made of the rotation alone correlates 1 with it and not with a depth error drawn
     apart; the near and far runs are those within 20 deg and beyond 45 deg; given-pose methods are left out;

@@ -209,6 +209,37 @@ def _plot_over_time(curve: pd.DataFrame, column: str, ylabel: str, ylim: tuple[f
     return True
 
 
+def plot_heading_spread(rows: pd.DataFrame, path: Path) -> bool:
+    """The share of runs whose mean heading error is at most each angle (its empirical distribution), per
+    condition (a panel each) and method that estimates the base pose; the error up to the twin dashed, and issue
+    21's 20 deg marked. False when no method estimates the heading."""
+    from harness.evaluation.tables import HEADING_NEAR_DEG, heading_spread
+
+    spread = heading_spread(rows)
+    if not len(spread):
+        return False
+    plt = _pyplot()
+    conds = list(dict.fromkeys(spread["condition"]))
+    fig, axes = plt.subplots(1, len(conds), figsize=(4.2 * len(conds), 3.6), sharey=True, squeeze=False)
+    for ax, cond in zip(axes[0], conds):
+        for method in spread.loc[spread["condition"] == cond, "method"]:
+            g = rows[(rows["condition"] == cond) & (rows["method"] == method)]
+            for column, ls in (("heading_err_deg", "-"), ("heading_err_twin_deg", "--")):
+                x = np.sort(pd.to_numeric(g[column], errors="coerce").dropna().to_numpy())
+                if len(x):
+                    ax.step(np.r_[0.0, x, 180.0], np.r_[0.0, np.arange(1, len(x) + 1) / len(x), 1.0], where="post",
+                            color=_colour(method), ls=ls, label=method if ls == "-" else f"{method}, up to the twin")
+        ax.axvline(HEADING_NEAR_DEG, color="0.6", lw=1, ls=":")
+        ax.set_xlim(0.0, 180.0)
+        ax.set_xlabel("mean heading error of a run (deg)")
+        ax.set_title(cond, fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("share of runs at most this far off")
+    axes[0][0].legend(fontsize=7, loc="lower right")
+    _save(fig, path)
+    return True
+
+
 def plot_reliability(rel: pd.DataFrame, path: Path) -> bool:
     """Reliability diagrams: per recognising method (one panel each), the accuracy of each equal-mass bin
     against its mean confidence (marker area by runs), the run count written beside it, and the diagonal of a
@@ -345,6 +376,8 @@ def write_plots(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], class
         made.append("plots/accuracy_over_time.png")
     if plot_heading_over_time(heading_over_time(rows), out_dir / "plots/heading_over_time.png"):
         made.append("plots/heading_over_time.png")
+    if plot_heading_spread(rows, out_dir / "plots/heading_spread.png"):
+        made.append("plots/heading_spread.png")
     if plot_class_heatmap(per_class(rows), classes, out_dir / "plots/class_accuracy.png"):
         made.append("plots/class_accuracy.png")
     if plot_reliability(reliability_table(rows), out_dir / "plots/reliability.png"):

@@ -103,6 +103,7 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
         ]
     parts += _view_section(figures)
     parts += _pose_error_section(tables)
+    parts += _heading_spread_section(tables, figures)
     worst = tables["worst_runs"]
     if len(worst):
         parts += ["## The three worst runs of `full`\n",
@@ -238,6 +239,21 @@ def _pose_error_section(tables: dict) -> list[str]:
             "(`n_near`, `mpjpe_cam_near`) and beyond 45 deg (`n_far`, `mpjpe_cam_far`); `mpjpe_pose_mm` is the "
             "posture alone.\n",
             markdown(split)]
+
+
+def _heading_spread_section(tables: dict, figures: list[str]) -> list[str]:
+    """How the runs' heading errors spread (``tables.heading_spread``), if any method estimates the base pose."""
+    spread = tables.get("heading_spread")
+    if spread is None or not len(spread):
+        return []
+    return ["## How the heading errors spread\n",
+            "Per condition and method that estimates the base pose, the runs' mean heading errors: their mean and "
+            "median, the share within 20 deg (`within_20`), the share settled on the depth-reflected mirrored "
+            "twin (`on_twin`: more than 90 deg off, within 45 deg up to the twin), and the mean over the other runs "
+            "(`heading_mean_not_twin`). The plot is each share of runs at most so far off (dashed: up to the "
+            "twin).\n",
+            *_section_plots(figures, ("heading_spread",)),
+            markdown(spread)]
 
 
 def _video_name(run_key: str) -> str:

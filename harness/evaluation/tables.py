@@ -371,12 +371,45 @@ def pose_error_split(rows: pd.DataFrame) -> pd.DataFrame:
     return _order(pd.DataFrame(out, columns=cols), []) if out else pd.DataFrame(columns=cols)
 
 
+# A run settled on the twin (``heading_spread``): its mean heading error beyond a quarter turn, and within
+# ``HEADING_FAR_DEG`` of the depth-reflected mirrored twin (``heading_err_twin_deg``, the error to the nearer of
+# the two at every frame).
+TWIN_RUN_DEG = 90.0
+
+
+def heading_spread(rows: pd.DataFrame) -> pd.DataFrame:
+    """How the runs' mean heading errors spread, per condition and method that estimates the base pose: their
+    mean and median (deg), the share within ``HEADING_NEAR_DEG``, the share settled on the twin (mean heading
+    error beyond ``TWIN_RUN_DEG`` and up to the twin within ``HEADING_FAR_DEG``), and the mean over the other
+    runs: a mean held up by a tail of twins reads apart from one spread evenly. Empty for rows without the two
+    heading columns."""
+    cols = ["condition", "method", "n", "heading_mean", "heading_median", "within_20", "on_twin",
+            "heading_mean_not_twin"]
+    need = ("heading_err_deg", "heading_err_twin_deg")
+    if not len(rows) or any(c not in rows for c in need):
+        return pd.DataFrame(columns=cols)
+    out = []
+    for (cond, method), g in rows.groupby(["condition", "method"], sort=False):
+        if method in METHODS and "heading_err_deg" in METHODS[method].given:
+            continue
+        x = g[list(need)].apply(pd.to_numeric, errors="coerce").dropna()
+        if not len(x):
+            continue
+        twin = (x["heading_err_deg"] > TWIN_RUN_DEG) & (x["heading_err_twin_deg"] <= HEADING_FAR_DEG)
+        rest = x.loc[~twin, "heading_err_deg"]
+        out.append({"condition": cond, "method": method, "n": len(x), "heading_mean": x["heading_err_deg"].mean(),
+                    "heading_median": x["heading_err_deg"].median(),
+                    "within_20": float((x["heading_err_deg"] <= HEADING_NEAR_DEG).mean()),
+                    "on_twin": float(twin.mean()), "heading_mean_not_twin": rest.mean() if len(rest) else np.nan})
+    return _order(pd.DataFrame(out, columns=cols), []) if out else pd.DataFrame(columns=cols)
+
+
 def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str],
                  n_boot: int = N_BOOT, seed: int = 0) -> dict[str, pd.DataFrame]:
     """Write ``summary``, ``headline``, ``per_class``, ``class_accuracy``, ``answers``, ``confusion``,
     ``paired_tests``, ``accuracy_over_time``,
-    ``heading_over_time``, ``worst_runs``, ``calibration``, ``reliability``, ``by_view`` and ``pose_error_split``
-    as CSV and Markdown,
+    ``heading_over_time``, ``worst_runs``, ``calibration``, ``reliability``, ``by_view``, ``pose_error_split`` and
+    ``heading_spread`` as CSV and Markdown,
     and ``metrics.json`` (pooled metrics), under ``out_dir``. Returns the tables by name."""
     out_dir = Path(out_dir)
     summ = summary(rows, swept, n_boot, seed)
@@ -392,7 +425,8 @@ def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], clas
               "accuracy_over_time": accuracy_over_time(rows), "heading_over_time": heading_over_time(rows),
               "worst_runs": worst_runs(rows),
               "calibration": calibration_table(rows, swept), "reliability": reliability_table(rows),
-              "by_view": by_view(rows, n_boot, seed), "pose_error_split": pose_error_split(rows)}
+              "by_view": by_view(rows, n_boot, seed), "pose_error_split": pose_error_split(rows),
+              "heading_spread": heading_spread(rows)}
     conf = confusion(rows, classes)
     long = [{"condition": c, "method": m, "true": t, "predicted": p, "count": int(mat.loc[t, p])}
             for (c, m), mat in conf.items() for t in mat.index for p in mat.columns]
