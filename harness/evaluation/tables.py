@@ -342,6 +342,23 @@ def by_view(rows: pd.DataFrame, n_boot: int = N_BOOT, seed: int = 0) -> pd.DataF
 HEADING_NEAR_DEG, HEADING_FAR_DEG = 20.0, 45.0
 
 
+def _estimated_pose_groups(rows: pd.DataFrame, need: tuple[str, ...], cols: list[str], least: int, one):
+    """``one(x)``'s row (a dict) for each condition and method that estimates the base pose (not handed the
+    heading), ``x`` its runs' ``need`` columns as numbers without missing values, if it has at least ``least``
+    such runs; the rows ordered as every table (``_order``), with the columns ``cols``. Empty for rows without
+    the ``need`` columns."""
+    if not len(rows) or any(c not in rows for c in need):
+        return pd.DataFrame(columns=cols)
+    out = []
+    for (cond, method), g in rows.groupby(["condition", "method"], sort=False):
+        if method in METHODS and "heading_err_deg" in METHODS[method].given:
+            continue
+        x = g[list(need)].apply(pd.to_numeric, errors="coerce").dropna()
+        if len(x) >= least:
+            out.append({"condition": cond, "method": method, "n": len(x), **one(x)})
+    return _order(pd.DataFrame(out, columns=cols), []) if out else pd.DataFrame(columns=cols)
+
+
 def pose_error_split(rows: pd.DataFrame) -> pd.DataFrame:
     """What the camera-frame joint error is made of, per condition and method that estimates the base pose:
     mean ``mpjpe_cam_mm`` and ``mpjpe_pose_mm`` (the posture alone); the Pearson correlation over runs of
@@ -352,23 +369,15 @@ def pose_error_split(rows: pd.DataFrame) -> pd.DataFrame:
     cols = ["condition", "method", "n", "mpjpe_cam_mm", "mpjpe_pose_mm", "corr_rotation", "corr_depth",
             "n_near", "mpjpe_cam_near", "n_far", "mpjpe_cam_far"]
     need = ("mpjpe_cam_mm", "mpjpe_pose_mm", "base_rot_err_deg", "base_depth_err_m", "heading_err_deg")
-    if not len(rows) or any(c not in rows for c in need):
-        return pd.DataFrame(columns=cols)
-    out = []
-    for (cond, method), g in rows.groupby(["condition", "method"], sort=False):
-        if method in METHODS and "heading_err_deg" in METHODS[method].given:
-            continue
-        x = g[list(need)].apply(pd.to_numeric, errors="coerce").dropna()
-        if len(x) < 2:
-            continue
+
+    def one(x: pd.DataFrame) -> dict:
         near, far = x[x["heading_err_deg"] <= HEADING_NEAR_DEG], x[x["heading_err_deg"] > HEADING_FAR_DEG]
-        out.append({"condition": cond, "method": method, "n": len(x), "mpjpe_cam_mm": x["mpjpe_cam_mm"].mean(),
-                    "mpjpe_pose_mm": x["mpjpe_pose_mm"].mean(),
-                    "corr_rotation": x["mpjpe_cam_mm"].corr(x["base_rot_err_deg"]),
-                    "corr_depth": x["mpjpe_cam_mm"].corr(x["base_depth_err_m"]),
-                    "n_near": len(near), "mpjpe_cam_near": near["mpjpe_cam_mm"].mean() if len(near) else np.nan,
-                    "n_far": len(far), "mpjpe_cam_far": far["mpjpe_cam_mm"].mean() if len(far) else np.nan})
-    return _order(pd.DataFrame(out, columns=cols), []) if out else pd.DataFrame(columns=cols)
+        return {"mpjpe_cam_mm": x["mpjpe_cam_mm"].mean(), "mpjpe_pose_mm": x["mpjpe_pose_mm"].mean(),
+                "corr_rotation": x["mpjpe_cam_mm"].corr(x["base_rot_err_deg"]),
+                "corr_depth": x["mpjpe_cam_mm"].corr(x["base_depth_err_m"]),
+                "n_near": len(near), "mpjpe_cam_near": near["mpjpe_cam_mm"].mean() if len(near) else np.nan,
+                "n_far": len(far), "mpjpe_cam_far": far["mpjpe_cam_mm"].mean() if len(far) else np.nan}
+    return _estimated_pose_groups(rows, need, cols, 2, one)
 
 
 # A run settled on the twin (``heading_spread``): its mean heading error beyond a quarter turn, and within
@@ -386,22 +395,14 @@ def heading_spread(rows: pd.DataFrame) -> pd.DataFrame:
     cols = ["condition", "method", "n", "heading_mean", "heading_median", "within_20", "on_twin",
             "heading_mean_not_twin"]
     need = ("heading_err_deg", "heading_err_twin_deg")
-    if not len(rows) or any(c not in rows for c in need):
-        return pd.DataFrame(columns=cols)
-    out = []
-    for (cond, method), g in rows.groupby(["condition", "method"], sort=False):
-        if method in METHODS and "heading_err_deg" in METHODS[method].given:
-            continue
-        x = g[list(need)].apply(pd.to_numeric, errors="coerce").dropna()
-        if not len(x):
-            continue
-        twin = (x["heading_err_deg"] > TWIN_RUN_DEG) & (x["heading_err_twin_deg"] <= HEADING_FAR_DEG)
-        rest = x.loc[~twin, "heading_err_deg"]
-        out.append({"condition": cond, "method": method, "n": len(x), "heading_mean": x["heading_err_deg"].mean(),
-                    "heading_median": x["heading_err_deg"].median(),
-                    "within_20": float((x["heading_err_deg"] <= HEADING_NEAR_DEG).mean()),
-                    "on_twin": float(twin.mean()), "heading_mean_not_twin": rest.mean() if len(rest) else np.nan})
-    return _order(pd.DataFrame(out, columns=cols), []) if out else pd.DataFrame(columns=cols)
+
+    def one(x: pd.DataFrame) -> dict:
+        heading = x["heading_err_deg"]
+        twin = (heading > TWIN_RUN_DEG) & (x["heading_err_twin_deg"] <= HEADING_FAR_DEG)
+        return {"heading_mean": heading.mean(), "heading_median": heading.median(),
+                "within_20": float((heading <= HEADING_NEAR_DEG).mean()), "on_twin": float(twin.mean()),
+                "heading_mean_not_twin": heading[~twin].mean() if (~twin).any() else np.nan}
+    return _estimated_pose_groups(rows, need, cols, 1, one)
 
 
 def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str],
