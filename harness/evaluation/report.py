@@ -102,8 +102,7 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
             "(bins in `reliability.csv`; all conditions pooled, the number of runs written at each bin)\n",
         ]
     parts += _view_section(figures)
-    parts += _pose_error_section(tables)
-    parts += _heading_spread_section(tables, figures)
+    parts += _pose_sections(tables, figures)
     worst = tables["worst_runs"]
     if len(worst):
         parts += ["## The three worst runs of `full`\n",
@@ -225,35 +224,31 @@ def _view_section(figures: list[str]) -> list[str]:
             *_section_plots(figures, ("by_view",))]
 
 
-def _pose_error_section(tables: dict) -> list[str]:
-    """What the camera-frame joint error is made of (``tables.pose_error_split``), if any method estimates the
-    base pose."""
-    split = tables.get("pose_error_split")
-    if split is None or not len(split):
-        return []
-    return ["## What the camera-frame error is made of\n",
-            "`mpjpe_cam_mm` subtracts each skeleton's root, so the baselink's orientation enters it and its position "
-            "does not. Per condition and method that estimates the base pose: the correlation over runs of "
-            "`mpjpe_cam_mm` with the baselink's rotation error (`corr_rotation`) and with its depth error "
-            "(`corr_depth`), and the mean `mpjpe_cam_mm` of the runs whose heading error is within 20 deg "
-            "(`n_near`, `mpjpe_cam_near`) and beyond 45 deg (`n_far`, `mpjpe_cam_far`); `mpjpe_pose_mm` is the "
-            "posture alone.\n",
-            markdown(split)]
+# The sections of the tables on the estimated base pose (``tables._estimated_pose_groups``): table, title, text.
+POSE_SECTIONS = (
+    ("pose_error_split", "What the camera-frame error is made of",
+     "`mpjpe_cam_mm` subtracts each skeleton's root, so the baselink's orientation enters it and its position does "
+     "not. Per condition and method that estimates the base pose: the correlation over runs of `mpjpe_cam_mm` with "
+     "the baselink's rotation error (`corr_rotation`) and with its depth error (`corr_depth`), and the mean "
+     "`mpjpe_cam_mm` of the runs whose heading error is within 20 deg (`n_near`, `mpjpe_cam_near`) and beyond 45 "
+     "deg (`n_far`, `mpjpe_cam_far`); `mpjpe_pose_mm` is the posture alone."),
+    ("heading_spread", "How the heading errors spread",
+     "Per condition and method that estimates the base pose, the runs' mean heading errors: their mean and median, "
+     "the share within 20 deg (`within_20`), the share settled on the depth-reflected mirrored twin (`on_twin`: "
+     "more than 90 deg off, within 45 deg up to the twin), and the mean over the other runs "
+     "(`heading_mean_not_twin`). The plot is each share of runs at most so far off (dashed: up to the twin)."),
+)
 
 
-def _heading_spread_section(tables: dict, figures: list[str]) -> list[str]:
-    """How the runs' heading errors spread (``tables.heading_spread``), if any method estimates the base pose."""
-    spread = tables.get("heading_spread")
-    if spread is None or not len(spread):
-        return []
-    return ["## How the heading errors spread\n",
-            "Per condition and method that estimates the base pose, the runs' mean heading errors: their mean and "
-            "median, the share within 20 deg (`within_20`), the share settled on the depth-reflected mirrored "
-            "twin (`on_twin`: more than 90 deg off, within 45 deg up to the twin), and the mean over the other runs "
-            "(`heading_mean_not_twin`). The plot is each share of runs at most so far off (dashed: up to the "
-            "twin).\n",
-            *_section_plots(figures, ("heading_spread",)),
-            markdown(spread)]
+def _pose_sections(tables: dict, figures: list[str]) -> list[str]:
+    """``POSE_SECTIONS`` with their tables and the plot of the same name, those whose table has rows (some method
+    estimates the base pose)."""
+    parts = []
+    for name, title, text in POSE_SECTIONS:
+        table = tables.get(name)
+        if table is not None and len(table):
+            parts += [f"## {title}\n", text + "\n", *_section_plots(figures, (name,)), markdown(table)]
+    return parts
 
 
 def _video_name(run_key: str) -> str:
