@@ -16,8 +16,10 @@ stream:
   are chosen by it too;
 - ``posture0.1``: the same with every true angle off by a fixed offset of std 0.1 rad, one per angle and run
   (``depth_profile.true_features``), and every angle with the std 0.1 rad;
+- ``angles``: as ``posture``, but only the angles true (exact), the rates and the base's velocities the track's
+  belief's (its primitive's states under the belief, moment-matched in joint space: ``depth_profile.part_features``);
 - ``depth``: the reference with every spawned particle moved along its ray to the true depth;
-- ``posture+depth``: both.
+- ``posture+depth``, ``angles+depth``: both.
 
 The oracles replace ``ParticleTracks.start`` and ``log_likelihoods`` and ``Tracker._recognise`` in this process's
 workers only. Prints per condition and variant the mean heading error over runs (and its median, the share within
@@ -36,9 +38,11 @@ import numpy as np
 
 import dev_runs
 
-# name: (the posture oracle's angle offset and std in rad, or None for none; the spawn at the true depth)
-VARIANTS = {"engine": (None, False), "reference": (None, False), "posture": (0.0, False),
-            "posture0.1": (0.1, False), "depth": (None, True), "posture+depth": (0.0, True)}
+# name: (the posture oracle's angle offset and std in rad, or None for none; the spawn at the true depth; only the
+# angles true)
+VARIANTS = {"engine": (None, False, False), "reference": (None, False, False), "posture": (0.0, False, False),
+            "posture0.1": (0.1, False, False), "angles": (0.0, False, True), "depth": (None, True, False),
+            "posture+depth": (0.0, True, False), "angles+depth": (0.0, True, True)}
 # What the oracles hand the tracker in this worker: per frame the two-state point distributions (the true posture
 # and its mirror image), and the true depths. Empty: the engine's own.
 _ORACLE: dict = {}
@@ -49,7 +53,17 @@ def _install() -> None:
     originals run whenever the oracle is empty."""
     from scipy.special import logsumexp
 
+    from depth_profile import belief_rows, part_features, posture_points
     from harness.engine import pose_source, tracker
+    from harness.engine.features import ANGLES, mirror_features
+    from harness.engine.transform import PointDistributions
+
+    def _angles_pair(source, track, t):
+        """The track's belief's blob in joint space with the true angles, and its mirror image."""
+        model, c = source.scorer.model, track.primitive
+        mean, var = part_features(model, belief_rows(track.recognizer, c)[c], c, _ORACLE["angles"][t], (ANGLES,))
+        return (posture_points(model, mean, var)[0],
+                posture_points(model, mirror_features(mean), np.abs(mirror_features(var)))[0])
 
     if getattr(pose_source, "_oracle_installed", False):
         return
@@ -70,8 +84,14 @@ def _install() -> None:
         pos = np.concatenate([t.cloud.positions for t in tracks])
         quat = np.concatenate([t.cloud.quats for t in tracks])
         n = len(pos)
-        both = self.scorer.pose_log_likelihood(frame, np.concatenate([quat, quat]), np.concatenate([pos, pos]),
-                                               _ORACLE["posture"][frame.index], np.repeat([0, 1], n),
+        sizes = [len(t.cloud) for t in tracks]
+        if "angles" in _ORACLE:         # each track's own pair: the true angles in its belief's blob
+            dists = PointDistributions.concatenate([d for t in tracks for d in _angles_pair(self, t, frame.index)])
+            first = np.repeat(2 * np.arange(len(tracks)), sizes)
+        else:
+            dists, first = _ORACLE["posture"][frame.index], np.zeros(n, dtype=int)
+        both = self.scorer.pose_log_likelihood(frame, np.concatenate([quat, quat]), np.concatenate([pos, pos]), dists,
+                                               np.concatenate([first, first + 1]),
                                                n_eff=self.scorer.config.n_eff_filter)
         ll = np.logaddexp(both[:n], both[n:]) - np.log(2.0)
         out, at = [], 0
@@ -107,13 +127,16 @@ def _one(job, variants: tuple[str, ...]) -> dict:
     truth = inputs.truth
     out = {"key": run.key, "condition": run.condition_label, "class": run.test_class}
     for name in variants:
-        posture, depth = VARIANTS[name]
+        posture, depth, angles_only = VARIANTS[name]
         settings = {"backward_pass": False} | ({} if name == "engine" else {"reinject_every": 0})
         tracker = dev_runs.tracker_for(inputs, overrides | settings)
         _ORACLE.clear()
         if depth:
             _ORACLE["depth"] = truth.base_pos_cam[:, 2]
-        if posture is not None:
+        if angles_only:
+            _ORACLE["angles"] = true_features(run, inputs)
+            _ORACLE["posture"] = None
+        elif posture is not None:
             features = true_features(run, inputs, posture)
             pairs = zip(posture_points(tracker.model, features, posture),
                         posture_points(tracker.model, mirror_features(features), posture))
