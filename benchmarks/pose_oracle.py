@@ -18,6 +18,7 @@ stream:
   (``depth_profile.true_features``), and every angle with the std 0.1 rad;
 - ``angles``: as ``posture``, but only the angles true (exact), the rates and the base's velocities the track's
   belief's (its primitive's states under the belief, moment-matched in joint space: ``depth_profile.part_features``);
+  ``angles0.1``: the angles off by a fixed 0.1 rad with the std 0.1 rad; ``angles+rates``: the rates true too;
 - ``depth``: the reference with every spawned particle moved along its ray to the true depth;
 - ``posture+depth``, ``angles+depth``: both.
 
@@ -38,11 +39,13 @@ import numpy as np
 
 import dev_runs
 
-# name: (the posture oracle's angle offset and std in rad, or None for none; the spawn at the true depth; only the
-# angles true)
-VARIANTS = {"engine": (None, False, False), "reference": (None, False, False), "posture": (0.0, False, False),
-            "posture0.1": (0.1, False, False), "angles": (0.0, False, True), "depth": (None, True, False),
-            "posture+depth": (0.0, True, False), "angles+depth": (0.0, True, True)}
+# name: (the posture oracle's angle offset and std in rad, or None for none; the spawn at the true depth; the
+# feature groups taken from the truth into each track's belief (``depth_profile.PARTS``), or None for every feature)
+VARIANTS = {"engine": (None, False, None), "reference": (None, False, None), "posture": (0.0, False, None),
+            "posture0.1": (0.1, False, None), "angles": (0.0, False, ("true-angles",)),
+            "angles0.1": (0.1, False, ("true-angles",)), "angles+rates": (0.0, False, ("true-angles", "true-rates")),
+            "depth": (None, True, None), "posture+depth": (0.0, True, None),
+            "angles+depth": (0.0, True, ("true-angles",))}
 # What the oracles hand the tracker in this worker: per frame the two-state point distributions (the true posture
 # and its mirror image), and the true depths. Empty: the engine's own.
 _ORACLE: dict = {}
@@ -53,15 +56,20 @@ def _install() -> None:
     originals run whenever the oracle is empty."""
     from scipy.special import logsumexp
 
-    from depth_profile import belief_rows, part_features, posture_points
+    from depth_profile import PARTS, belief_rows, part_features, posture_points
     from harness.engine import pose_source, tracker
     from harness.engine.features import ANGLES, mirror_features
     from harness.engine.transform import PointDistributions
 
-    def _angles_pair(source, track, t):
-        """The track's belief's blob in joint space with the true angles, and its mirror image."""
+    def _part_pair(source, track, t):
+        """The track's belief's blob in joint space with the oracle's feature groups true (the angles with the
+        oracle's std), and its mirror image."""
         model, c = source.scorer.model, track.primitive
-        mean, var = part_features(model, belief_rows(track.recognizer, c)[c], c, _ORACLE["angles"][t], (ANGLES,))
+        features, names, std = _ORACLE["parts"]
+        groups = tuple(g for name in names for g in PARTS[name])
+        mean, var = part_features(model, belief_rows(track.recognizer, c)[c], c, features[t], groups)
+        if "true-angles" in names:
+            var[:, ANGLES] = std**2
         return (posture_points(model, mean, var)[0],
                 posture_points(model, mirror_features(mean), np.abs(mirror_features(var)))[0])
 
@@ -85,8 +93,8 @@ def _install() -> None:
         quat = np.concatenate([t.cloud.quats for t in tracks])
         n = len(pos)
         sizes = [len(t.cloud) for t in tracks]
-        if "angles" in _ORACLE:         # each track's own pair: the true angles in its belief's blob
-            dists = PointDistributions.concatenate([d for t in tracks for d in _angles_pair(self, t, frame.index)])
+        if "parts" in _ORACLE:          # each track's own pair: some true features in its belief's blob
+            dists = PointDistributions.concatenate([d for t in tracks for d in _part_pair(self, t, frame.index)])
             first = np.repeat(2 * np.arange(len(tracks)), sizes)
         else:
             dists, first = _ORACLE["posture"][frame.index], np.zeros(n, dtype=int)
@@ -127,14 +135,14 @@ def _one(job, variants: tuple[str, ...]) -> dict:
     truth = inputs.truth
     out = {"key": run.key, "condition": run.condition_label, "class": run.test_class}
     for name in variants:
-        posture, depth, angles_only = VARIANTS[name]
+        posture, depth, parts = VARIANTS[name]
         settings = {"backward_pass": False} | ({} if name == "engine" else {"reinject_every": 0})
         tracker = dev_runs.tracker_for(inputs, overrides | settings)
         _ORACLE.clear()
         if depth:
             _ORACLE["depth"] = truth.base_pos_cam[:, 2]
-        if angles_only:
-            _ORACLE["angles"] = true_features(run, inputs)
+        if parts is not None:
+            _ORACLE["parts"] = (true_features(run, inputs, posture), parts, posture)
             _ORACLE["posture"] = None
         elif posture is not None:
             features = true_features(run, inputs, posture)
