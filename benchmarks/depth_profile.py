@@ -160,7 +160,18 @@ def posture_points(model, features: np.ndarray, angle_std: float | np.ndarray) -
                                       model.spread) for f, v in zip(features, var)]
 
 
-def part_features(model, weights: np.ndarray, c: int, true: np.ndarray, groups: tuple) -> tuple[np.ndarray, np.ndarray]:
+def mirrored_points(model, features: np.ndarray, angle_std: float | np.ndarray) -> tuple[list, list]:
+    """``posture_points`` at ``features`` and at their mirror image (``features.mirror_features``; a variance
+    takes the mirror's permutation alone): the body and its reflected twin."""
+    from harness.engine.features import mirror_features
+
+    mirrored_std = angle_std if np.ndim(angle_std) == 0 else np.abs(mirror_features(np.asarray(angle_std)))
+    return (posture_points(model, features, angle_std),
+            posture_points(model, mirror_features(features), mirrored_std))
+
+
+def part_features(model, weights: np.ndarray, c: int, true: np.ndarray,
+                  groups: tuple) -> tuple[np.ndarray, np.ndarray]:
     """``(1, 106)`` means and variances: primitive ``c``'s states under ``weights`` (its states' posterior)
     moment-matched in joint space, with the feature ``groups`` (index arrays) set to the ``true`` features and no
     variance."""

@@ -46,9 +46,16 @@ VARIANTS = {"engine": (None, False, None), "reference": (None, False, None), "po
             "angles0.1": (0.1, False, ("true-angles",)), "angles+rates": (0.0, False, ("true-angles", "true-rates")),
             "depth": (None, True, None), "posture+depth": (0.0, True, None),
             "angles+depth": (0.0, True, ("true-angles",))}
-# What the oracles hand the tracker in this worker: per frame the two-state point distributions (the true posture
-# and its mirror image), and the true depths. Empty: the engine's own.
+# What the oracles hand the tracker in this worker: per frame the two-state point distributions of the true
+# posture and its mirror image ("posture"), or the true features, the groups of them put into each track's belief
+# and the angles' std ("parts"); and the true depths ("depth"). Empty: the engine's own.
 _ORACLE: dict = {}
+
+
+def _posture_known() -> bool:
+    """Whether the oracle hands the weighing a posture (the same for every track, or true features in each
+    track's belief)."""
+    return "posture" in _ORACLE or "parts" in _ORACLE
 
 
 def _install() -> None:
@@ -56,9 +63,9 @@ def _install() -> None:
     originals run whenever the oracle is empty."""
     from scipy.special import logsumexp
 
-    from depth_profile import PARTS, belief_rows, part_features, posture_points
+    from depth_profile import PARTS, belief_rows, mirrored_points, part_features
     from harness.engine import pose_source, tracker
-    from harness.engine.features import ANGLES, mirror_features
+    from harness.engine.features import ANGLES
     from harness.engine.transform import PointDistributions
 
     def _part_pair(source, track, t):
@@ -70,8 +77,8 @@ def _install() -> None:
         mean, var = part_features(model, belief_rows(track.recognizer, c)[c], c, features[t], groups)
         if "true-angles" in names:
             var[:, ANGLES] = std**2
-        return (posture_points(model, mean, var)[0],
-                posture_points(model, mirror_features(mean), np.abs(mirror_features(var)))[0])
+        truth, twin = mirrored_points(model, mean, var)
+        return truth[0], twin[0]
 
     if getattr(pose_source, "_oracle_installed", False):
         return
@@ -87,7 +94,7 @@ def _install() -> None:
         return tracks
 
     def oracle_weigh(self, frame, tracks):
-        if "posture" not in _ORACLE:
+        if not _posture_known():
             return weigh(self, frame, tracks)
         pos = np.concatenate([t.cloud.positions for t in tracks])
         quat = np.concatenate([t.cloud.quats for t in tracks])
@@ -113,7 +120,7 @@ def _install() -> None:
 
     def oracle_recognise(self, frame):
         recognise(self, frame)
-        if "posture" in _ORACLE:
+        if _posture_known():
             for t in self.tracks:
                 t.log_evidence = getattr(t, "oracle_evidence", 0.0)
 
@@ -126,8 +133,7 @@ def _install() -> None:
 def _one(job, variants: tuple[str, ...]) -> dict:
     run, overrides = job
     _install()
-    from depth_profile import posture_points, true_features
-    from harness.engine.features import mirror_features
+    from depth_profile import mirrored_points, true_features
     from harness.engine.transform import PointDistributions
     from harness.evaluation import metrics, pipeline
 
@@ -143,11 +149,8 @@ def _one(job, variants: tuple[str, ...]) -> dict:
             _ORACLE["depth"] = truth.base_pos_cam[:, 2]
         if parts is not None:
             _ORACLE["parts"] = (true_features(run, inputs, posture), parts, posture)
-            _ORACLE["posture"] = None
         elif posture is not None:
-            features = true_features(run, inputs, posture)
-            pairs = zip(posture_points(tracker.model, features, posture),
-                        posture_points(tracker.model, mirror_features(features), posture))
+            pairs = zip(*mirrored_points(tracker.model, true_features(run, inputs, posture), posture))
             _ORACLE["posture"] = [PointDistributions.concatenate([a, b]) for a, b in pairs]
         try:
             qpos = tracker.run(inputs.obs, rng=np.random.default_rng(run.config.seed)).qpos

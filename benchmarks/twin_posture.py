@@ -52,7 +52,8 @@ from pathlib import Path
 import numpy as np
 
 import dev_runs
-from depth_profile import PARTS, belief_rows, part_features, posture_points, recovered_features, true_features
+from depth_profile import (PARTS, belief_rows, mirrored_points, part_features, posture_points, recovered_features,
+                           true_features)
 from harness.engine.features import ANGLES
 
 
@@ -71,7 +72,7 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
     postures = {}
     for name, noise in [("true", 0.0)] + [(f"off{s:g}", s) for s in offsets]:
         features = true_features(run, inputs, noise)
-        postures[name] = (posture_points(model, features, noise), posture_points(model, mirror_features(features), noise))
+        postures[name] = mirrored_points(model, features, noise)
     if recovered is not None:       # the twin's base velocities are the true ones mirrored
         postures[f"recovered{recovered:g}"] = tuple(
             posture_points(model, recovered_features(inputs, tracker, pos, q, f), recovered)
@@ -122,14 +123,10 @@ def _part_blobs(model, weights: np.ndarray, c: int, true: np.ndarray) -> dict:
     """``--parts``' pairs (truth, twin) of point distributions: primitive ``c``'s states under ``weights``
     moment-matched in joint space, as is (``feature_blob``) and with each of ``depth_profile.PARTS``' feature
     groups set to the ``true`` features (``part_features``); the twin at the mirror image of each."""
-    from harness.engine.features import mirror_features
-
     out = {}
     for name, groups in {"feature_blob": (), **PARTS}.items():
-        mean, var = part_features(model, weights, c, true, groups)
-        # The mirror image permutes the features and flips some signs: a variance takes the permutation alone.
-        out[name] = (posture_points(model, mean, var)[0],
-                     posture_points(model, mirror_features(mean), np.abs(mirror_features(var)))[0])
+        truth, twin = mirrored_points(model, *part_features(model, weights, c, true, groups))
+        out[name] = (truth[0], twin[0])
     return out
 
 
