@@ -34,7 +34,8 @@ Summed over the clip, the truth's score minus the twin's is the twin's *margin* 
 condition and class as the median over runs and the share of runs in which the truth scores higher. Also per
 condition: how far the belief's posture is from the true one along the true path (the true angles minus the
 belief's mean angles, rms over the angles the performance moves), beside the blob's own spread, and split into
-the part that is constant over the clip (the performer's style: its mean) and the part that varies. The exact
+the part that is constant over the clip (the performer's style: its mean) and the part that varies; with
+``--recovered``, the same for the angles recovery finds handed the true base path. The exact
 twin is held at the true position; a track at the twin heading may also move and pitch to fit better, so these
 margins bound what the weighing can tell, they are not what the tracks see. ``docs/engine.md``, "The twin is told
 as sharply as the posture is known".
@@ -73,17 +74,19 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
     for name, noise in [("true", 0.0)] + [(f"off{s:g}", s) for s in offsets]:
         features = true_features(run, inputs, noise)
         postures[name] = mirrored_points(model, features, noise)
+    recovered_angles = None
     if recovered is not None:       # the twin's base velocities are the true ones mirrored
-        postures[f"recovered{recovered:g}"] = tuple(
-            posture_points(model, recovered_features(inputs, tracker, pos, q, f), recovered)
-            for q, f in zip(poses, (true, mirror_features(true))))
+        along_paths = [recovered_features(inputs, tracker, pos, q, f)
+                       for q, f in zip(poses, (true, mirror_features(true)))]
+        postures[f"recovered{recovered:g}"] = tuple(posture_points(model, f, recovered) for f in along_paths)
+        recovered_angles = along_paths[0][:, ANGLES]
     half = model.db.means_.shape[1] // 2        # a both-handed primitive's chain and its mirror image
     sampled = f"sampled{samples}"
     part_modes = (["feature_blob", *PARTS] if parts else [])
     margin = dict.fromkeys(["blob", *postures] + ([sampled] if samples else []) + part_modes, 0.0)
     rng = np.random.default_rng([run.config.seed, zlib.crc32(run.key.encode()), 1])
     angle_means, angle_vars = model.db.means_[c][:, ANGLES], model.db.covars_[c][:, ANGLES]
-    errors, blob_vars = [], []
+    errors, blob_vars, recovery_errors = [], [], []
     started = False
     for frame in observation_frames(obs, cfg):
         t = frame.index
@@ -96,6 +99,8 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
             gamma = rows[c] / rows[c].sum()
             mean = gamma @ angle_means
             errors.append(truth.qpos[t, 7:] - mean)
+            if recovered_angles is not None:
+                recovery_errors.append(truth.qpos[t, 7:] - recovered_angles[t])
             blob_vars.append(gamma @ (angle_vars + (angle_means - mean) ** 2))
             mirrored = np.concatenate([rows[:, half:], rows[:, :half]], axis=1)
             dists = {"blob": (model.dists.mixtures(rows.reshape(1, -1) / rows.sum()),
@@ -112,11 +117,15 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
                 margin[name] += float(score[0] - score[1])
         scorer.recognise(frame, [rec], pos[t][None], quat[t][None])
     moving = np.ptp(truth.qpos[:, 7:], axis=0) > 1e-3       # the angles the performance moves
-    errors, offset = np.array(errors)[:, moving], np.mean(errors, axis=0)[moving]
     rms = lambda a: float(np.sqrt(np.mean(np.square(a))))  # noqa: E731
+    posture = {"blob_std": rms(np.sqrt(np.array(blob_vars)[:, moving]))}
+    for name, err in (("", errors), ("recovered_", recovery_errors)):
+        if len(err):
+            err = np.array(err)[:, moving]
+            offset = err.mean(axis=0)
+            posture |= {name + "error": rms(err), name + "offset": rms(offset), name + "varying": rms(err - offset)}
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, "margin": margin,
-            "posture": {"blob_std": rms(np.sqrt(np.array(blob_vars)[:, moving])), "error": rms(errors),
-                        "offset": rms(offset), "varying": rms(errors - offset)}}
+            "posture": posture}
 
 
 def _part_blobs(model, weights: np.ndarray, c: int, true: np.ndarray) -> dict:
@@ -182,6 +191,10 @@ def main() -> None:
         print(f"  the belief's posture along the true path (rad, rms over the moved angles, median over runs): error "
               f"{posture['error']:.3f} (the blob's std {posture['blob_std']:.3f}), of which constant over the clip "
               f"{posture['offset']:.3f} and varying {posture['varying']:.3f}")
+        if "recovered_error" in posture:
+            print(f"  the angles recovery finds handed the true base path (the gt_base run's), the same frames: error "
+                  f"{posture['recovered_error']:.3f}, of which constant {posture['recovered_offset']:.3f} and varying "
+                  f"{posture['recovered_varying']:.3f}")
         print(f"  {'class':13s} " + " ".join(f"{m:>15s}" for m in modes))
         for name, group in [("all", sub)] + sorted(by_class.items()):
             cells = []
