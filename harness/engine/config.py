@@ -85,7 +85,9 @@ class TrackerConfig:
     refine_rotation_std: float = 0.3         # rad: recovery's rotation freedom around the filter's estimate
     recover_tracks: int = 1                  # tracks (most evidence first) refined by recovery each frame (2:
                                              # 73% against 72% on 60 development runs, at twice the cost; on
-                                             # 240 runs of seeds 101-103, 13 fixed / 16 lost)
+                                             # 240 runs of seeds 101-103, 13 fixed / 16 lost; 0: the wall's
+                                             # baselink +0.09 m and gt_base's posture +11 mm for 14% less
+                                             # time, 160 runs of seeds 136-137; docs/engine.md, Recovery)
     em_iterations: int = 3                   # re-assignments of flows to model points in recovery (issue 5;
                                              # 2: 10 fixed / 11 lost, smoothed 7 / 10 on 240 development runs)
     guide_fraction: float = 0.1              # share of a track's particles proposed around recovery's pose
