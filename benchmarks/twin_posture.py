@@ -29,6 +29,11 @@ each at a posture:
   (exact, no variance): ``true-angles``, ``true-motion`` (the rates and the base's velocities), ``true-rates``,
   ``true-base`` (the base's linear and angular velocities; ``depth_profile.PARTS``); the twin at the mirror image
   of the same features.
+- with ``--read-motion STD``, ``read-motion``: the same feature blob with its motion (the rates and the base's
+  velocities) read from the flows' velocities at each path (``read_motion``: the motion's Gaussian posterior
+  given the flows assigned to the model points by position, a linear fit at the blob's mean angles with each
+  point's velocity known to ``STD`` px/s), the truth's at the true pose and the twin's at the twin pose; and
+  how far the read motion is from the truth's beside the blob's (rms, rad/s and m/s).
 
 Summed over the clip, the truth's score minus the twin's is the twin's *margin* (tempered nats): printed per
 condition and class as the median over runs and the share of runs in which the truth scores higher. Also per
@@ -58,7 +63,8 @@ from depth_profile import (PARTS, belief_rows, mirrored_points, part_features, p
 from harness.engine.features import ANGLES
 
 
-def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int = 0, parts: bool = False) -> dict:
+def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int = 0, parts: bool = False,
+         read_std: float | None = None) -> dict:
     run, overrides = job
     from harness.engine.features import mirror_features
     from harness.engine.frame import observation_frames
@@ -82,7 +88,8 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
         recovered_angles = along_paths[0][:, ANGLES]
     half = model.db.means_.shape[1] // 2        # a both-handed primitive's chain and its mirror image
     sampled = f"sampled{samples}"
-    part_modes = (["feature_blob", *PARTS] if parts else [])
+    part_modes = (["feature_blob", *PARTS] if parts else []) + (["read-motion"] if read_std else [])
+    motion_errors = defaultdict(list)
     margin = dict.fromkeys(["blob", *postures] + ([sampled] if samples else []) + part_modes, 0.0)
     rng = np.random.default_rng([run.config.seed, zlib.crc32(run.key.encode()), 1])
     angle_means, angle_vars = model.db.means_[c][:, ANGLES], model.db.covars_[c][:, ANGLES]
@@ -108,6 +115,9 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
             dists |= {name: (a[t], b[t]) for name, (a, b) in postures.items()}
             if parts:
                 dists |= _part_blobs(model, rows[c], c, true[t])
+            if read_std:
+                dists["read-motion"] = _read_motion_blobs(scorer, frame, model, rows[c], c, poses, pos[t], t,
+                                                          read_std, true[t], motion_errors)
             if samples:
                 margin[sampled] += _sampled_margin(scorer, frame, model, rows.reshape(-1), samples, rng,
                                                    [(q[t], pos[t]) for q in poses], cfg.n_eff_filter)
@@ -124,6 +134,9 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
             err = np.array(err)[:, moving]
             offset = err.mean(axis=0)
             posture |= {name + "error": rms(err), name + "offset": rms(offset), name + "varying": rms(err - offset)}
+    for name, err in motion_errors.items():
+        err = np.array(err)
+        posture[name] = rms(err[:, moving] if name.endswith("rates") else err)
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, "margin": margin,
             "posture": posture}
 
@@ -137,6 +150,84 @@ def _part_blobs(model, weights: np.ndarray, c: int, true: np.ndarray) -> dict:
         truth, twin = mirrored_points(model, *part_features(model, weights, c, true, groups))
         out[name] = (truth[0], twin[0])
     return out
+
+
+def _read_motion_blobs(scorer, frame, model, weights: np.ndarray, c: int, poses: tuple, position: np.ndarray, t: int,
+                       vel_std: float, true: np.ndarray, errors: dict) -> tuple:
+    """``--read-motion``'s pair (truth, twin) of point distributions: primitive ``c``'s feature blob (its mirror
+    image for the twin) with its motion read from the frame's flows at each pose (``read_motion``); the true
+    pose's read and blob motion errors against the ``true`` features are added to ``errors``."""
+    from harness import geometry
+    from harness.engine.features import ANGLE_RATES, BASE_LINEAR, mirror_features, mirror_variances
+
+    mean, var = (a[0] for a in part_features(model, weights, c, true, ()))
+    out = []
+    for k, quat in enumerate(poses):
+        m, v = (mean, var) if k == 0 else (mirror_features(mean), mirror_variances(var))
+        rot = geometry.to_matrix(quat[t])
+        blob = posture_points(model, m[None], v[None])[0]
+        img = scorer.image(frame, rot[None], position[None], blob)
+        read_mean, read_var = read_motion(model, frame, rot, position, m, v, img, vel_std, scorer.config.noise_px)
+        if k == 0:
+            for name, group in (("rates", ANGLE_RATES), ("base_linear", BASE_LINEAR)):
+                errors["blob_" + name].append((m - true)[group])
+                errors["read_" + name].append((read_mean - true)[group])
+        out.append(posture_points(model, read_mean[None], read_var[None])[0])
+    return tuple(out)
+
+
+def read_motion(model, frame, rot: np.ndarray, position: np.ndarray, mean: np.ndarray, var: np.ndarray, img,
+                vel_std: float, noise_px: float, outlier: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """Features ``mean``, ``var`` ``(106,)`` with the motion (angle rates, the base's linear and angular velocity)
+    replaced by its Gaussian posterior given the frame's flow velocities, at the pose ``rot``, ``position``: each
+    flow assigned softly to the visible model points by position alone (``img``, one hypothesis's projection, the
+    pixel noise ``noise_px`` added, the outlier share ``outlier`` uniform over the image); each point's target the
+    assigned flows' mean velocity, known to ``vel_std`` px/s; the image velocity linear in the motion at the mean
+    angles, ``d(u, v)/dt = Pi R (J theta_dot + v + omega x x)``; the prior the features' own Gaussian."""
+    from harness.engine.features import ANGLE_RATES, BASE_ANGULAR
+
+    flows, intr = frame.flows, frame.intr
+    pix, cov, vis = img.pix[0], img.pix_cov[0] + noise_px**2 * np.eye(2), img.visibility[0]
+    d = flows[:, None, :2] - pix[None]
+    mahalanobis = np.einsum("mpi,pij,mpj->mp", d, np.linalg.inv(cov), d)
+    density = vis[None] / max(vis.sum(), 1e-12) * np.exp(-0.5 * mahalanobis) / (2 * np.pi * np.sqrt(np.linalg.det(cov)))
+    inlier = (1 - outlier) * density
+    resp = inlier / (inlier.sum(1, keepdims=True) + outlier / (intr.width * intr.height))
+    mass = resp.sum(0)
+    used = mass > 1e-3
+    target = resp[:, used].T @ flows[:, 2:4] / mass[used, None]
+    a = image_velocity_map(model, intr, mean[:ANGLE_RATES.start], rot, position, used)
+    motion = np.r_[ANGLE_RATES.start:BASE_ANGULAR.stop]
+    prior_mean, prior_precision = mean[motion], 1.0 / var[motion]
+    precision = np.einsum("q,qil,qim->lm", mass[used], a, a) / vel_std**2 + np.diag(prior_precision)
+    covariance = np.linalg.inv(precision)
+    out_mean, out_var = mean.copy(), var.copy()
+    out_mean[motion] = covariance @ (np.einsum("q,qil,qi->l", mass[used], a, target) / vel_std**2
+                                     + prior_precision * prior_mean)
+    out_var[motion] = np.diag(covariance)
+    return out_mean, out_var
+
+
+def image_velocity_map(model, intr, angles: np.ndarray, rot: np.ndarray, position: np.ndarray,
+                       used: np.ndarray) -> np.ndarray:
+    """``(Q, 2, 56)``: the model points ``used`` (a mask or indices) at ``angles``, the base at ``rot``,
+    ``position`` (camera frame): each point's image velocity (px/s) as a linear map of the motion ``(angle rates,
+    v, omega)`` (the base's velocities in its own frame), ``Pi R (J theta_dot + v + omega x x)``, the engine's
+    ``transform`` at a static camera."""
+    from harness.body.kinematics import forward_points_and_jacobians
+
+    qpos = np.concatenate([[0, 0, 0, 1, 0, 0, 0], angles])
+    x, jac = forward_points_and_jacobians(model.body, qpos, model.points.body[used], model.points.local[used], "base")
+    cam = x @ rot.T + position
+    z = cam[:, 2]
+    proj = np.zeros((len(x), 2, 3))
+    proj[:, 0, 0], proj[:, 0, 2] = intr.fx / z, -intr.fx * cam[:, 0] / z**2
+    proj[:, 1, 1], proj[:, 1, 2] = intr.fy / z, -intr.fy * cam[:, 1] / z**2
+    minus_skew = np.zeros((len(x), 3, 3))          # omega x x = minus_skew @ omega
+    minus_skew[:, 0, 1], minus_skew[:, 0, 2], minus_skew[:, 1, 2] = x[:, 2], -x[:, 1], x[:, 0]
+    minus_skew[:, 1, 0], minus_skew[:, 2, 0], minus_skew[:, 2, 1] = -x[:, 2], x[:, 1], -x[:, 0]
+    return np.einsum("qij,jk,qkl->qil", proj, rot,
+                     np.concatenate([jac, np.broadcast_to(np.eye(3), (len(x), 3, 3)), minus_skew], axis=2))
 
 
 def _sampled_margin(scorer, frame, model, belief: np.ndarray, samples: int, rng: np.random.Generator, poses: list,
@@ -171,13 +262,15 @@ def main() -> None:
                     help="also score under K postures drawn from the belief each frame (module docstring)")
     ap.add_argument("--recovered", type=float, default=None, metavar="STD",
                     help="also score each path at the posture recovered along it, every angle with this std (rad)")
+    ap.add_argument("--read-motion", type=float, default=None, metavar="STD",
+                    help="also score the blob with its motion read from the flows at each path (px/s; docstring)")
     ap.add_argument("--parts", action="store_true",
                     help="also score the belief's blob with the true angles, motion, rates or base velocity")
     args = ap.parse_args()
     runs = dev_runs.selected(args)
     t0 = time.perf_counter()
     rows = dev_runs.map_runs(partial(_one, offsets=tuple(args.offsets), recovered=args.recovered, samples=args.samples,
-                                      parts=args.parts), runs, args)
+                                      parts=args.parts, read_std=args.read_motion), runs, args)
     modes = list(rows[0]["margin"])
     print("the truth's score minus its exact twin's over the clip (tempered nats): median over runs (share of runs "
           "the truth scores higher)")
@@ -191,6 +284,11 @@ def main() -> None:
         print(f"  the belief's posture along the true path (rad, rms over the moved angles, median over runs): error "
               f"{posture['error']:.3f} (the blob's std {posture['blob_std']:.3f}), of which constant over the clip "
               f"{posture['offset']:.3f} and varying {posture['varying']:.3f}")
+        if "read_rates" in posture:
+            print(f"  the motion read from the flows at the true pose against the belief's (rms over the frames, "
+                  f"median over runs): angle rates {posture['read_rates']:.3f} against {posture['blob_rates']:.3f} "
+                  f"rad/s, the base's velocity {posture['read_base_linear']:.3f} against "
+                  f"{posture['blob_base_linear']:.3f} m/s")
         if "recovered_error" in posture:
             print(f"  the angles recovery finds handed the true base path (the gt_base run's), the same frames: error "
                   f"{posture['recovered_error']:.3f}, of which constant {posture['recovered_offset']:.3f} and varying "
