@@ -78,7 +78,7 @@ def _one(job, offsets: tuple[float, ...], recovered: float | None, samples: int 
     true = true_features(run, inputs)
     postures = {}
     for name, noise in [("true", 0.0)] + [(f"off{s:g}", s) for s in offsets]:
-        features = true_features(run, inputs, noise)
+        features = true if noise == 0.0 else true_features(run, inputs, noise)
         postures[name] = mirrored_points(model, features, noise)
     recovered_angles = None
     if recovered is not None:       # the twin's base velocities are the true ones mirrored
