@@ -326,15 +326,18 @@ def fit_without_database(body: BodyModel, points: SurfacePoints, intr: Intrinsic
     ``(T, 50)`` angles. No HMM, no recognition: what the database's prior adds is the difference."""
     angles = np.zeros(50)
     out = np.empty((len(flows), 50))
-    flow_model = FlowModel(noise_px, 1.0, intr.width, intr.height)
+    # Positions only: a velocity variance this wide makes the inlier's velocity factor constant, 1 / (2 pi var),
+    # and the outlier term's uniform velocity disc of radius sqrt(2 var) has the same density, so the factor
+    # cancels from the responsibilities. (With the outlier's usual disc it would outweigh every inlier.)
+    velocity_var = 1e12
+    flow_model = FlowModel(noise_px, 1.0, intr.width, intr.height, max_flow=np.sqrt(2.0 * velocity_var))
     for t, f in enumerate(flows):
         rot = geometry.to_matrix(base_quat[t])
         for _ in range(iterations if len(f) else 0):
             dist = state_point_distributions(body, JointGaussians.at(angles), points, spread)
             img = to_image(intr, rot[None], base_pos[t][None], dist)
-            # Positions only: a velocity covariance this wide makes the velocity factor constant.
-            img = type(img)(img.pix, img.pix_cov, img.flow, np.broadcast_to(1e12 * np.eye(2), img.flow_cov.shape),
-                            img.visibility)
+            img = type(img)(img.pix, img.pix_cov, img.flow,
+                            np.broadcast_to(velocity_var * np.eye(2), img.flow_cov.shape), img.visibility)
             resp = responsibilities(f, img, flow_model)
             prior = Prior(angles, np.full(50, angle_step_std), base_pos[t], np.full(3, 1e-4), rot, 1e-4)
             angles = refine_pose(body, points, intr, f, resp, prior, noise_px=noise_px, spread=spread,
