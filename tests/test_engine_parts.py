@@ -465,25 +465,33 @@ def test_mixture_proposal_is_importance_weighted(rng):
     np.testing.assert_allclose(guided.weights.sum(), 1.0)
 
 
-def test_refinement_recovers_a_perturbed_pose(body):
-    """Noiseless flows at known model points: Gauss-Newton from a perturbed start lands on the truth."""
-    rng = np.random.default_rng(4)
+def _posed_scene(body, rng):
+    """A camera, 150 model points, a random posture and a base pose 4 m away; ``camera_points(angles, rot, pos)``:
+    the model points in the camera frame (the scene's base pose by default)."""
     intr = Intrinsics.from_fov(45.0, 640, 480)
     points = sample_surface(body, 150, rng)
     theta = body.random_angles(rng, scale=0.3)
     rot = geometry.to_matrix(upright_orientations(np.array([0.8]), camera_pitch(0.15)))[0]
     pos = np.array([0.1, 0.2, 4.0])
-    qpos = body.qpos(theta, base_pos=np.zeros(3), base_quat=np.array([1.0, 0, 0, 0]))
-    X = forward_points(body, qpos, points.body, points.local, frame="base") @ rot.T + pos
-    flows = np.concatenate([project(intr, X), np.zeros((150, 2))], axis=1)
+
+    def camera_points(angles, rot=rot, pos=pos):
+        q = body.qpos(angles, base_pos=np.zeros(3), base_quat=np.array([1.0, 0, 0, 0]))
+        return forward_points(body, q, points.body, points.local, frame="base") @ rot.T + pos
+
+    return intr, points, theta, rot, pos, camera_points
+
+
+def test_refinement_recovers_a_perturbed_pose(body):
+    """Noiseless flows at known model points: Gauss-Newton from a perturbed start lands on the truth."""
+    rng = np.random.default_rng(4)
+    intr, points, theta, rot, pos, camera_points = _posed_scene(body, rng)
+    flows = np.concatenate([project(intr, camera_points(theta)), np.zeros((150, 2))], axis=1)
     resp = np.eye(150)
     start = np.clip(theta + rng.normal(0, np.deg2rad(5), 50), body.lower, body.upper)
     prior = Prior(start, np.full(50, 1.0), pos + 0.05, np.full(3, 1.0), rot, 1.0)
     got = refine_pose(body, points, intr, flows, resp, prior, noise_px=0.5, spread=0.0, iterations=8)
-    angles, pos_r, rot_r = got.angles, got.position, got.rotation
-    q = body.qpos(angles, base_pos=np.zeros(3), base_quat=np.array([1.0, 0, 0, 0]))
-    Xr = forward_points(body, q, points.body, points.local, frame="base") @ rot_r.T + pos_r
-    assert np.abs(project(intr, Xr) - flows[:, :2]).max() < 0.05
+    pos_r = got.position
+    assert np.abs(project(intr, camera_points(got.angles, got.rotation, pos_r)) - flows[:, :2]).max() < 0.05
     assert np.linalg.norm(pos_r - pos) < 0.01
     assert patch_std(body, 150) == pytest.approx(patch_std(body, 600) * 2, rel=1e-12)
 
@@ -494,17 +502,8 @@ def test_the_no_database_ablation_fits_the_flow_positions(body):
     truth than the zero posture's, in the image and in 3D. (A version whose responsibilities were all zero never
     moved its angles: both ratios were 1.)"""
     rng = np.random.default_rng(5)
-    intr = Intrinsics.from_fov(45.0, 640, 480)
-    points = sample_surface(body, 150, rng)
-    theta = body.random_angles(rng, scale=0.3)
-    rot = geometry.to_matrix(upright_orientations(np.array([0.8]), camera_pitch(0.15)))[0]
-    pos = np.array([0.1, 0.2, 4.0])
+    intr, points, theta, rot, pos, camera_points = _posed_scene(body, rng)
     T = 15
-
-    def camera_points(angles):
-        q = body.qpos(angles, base_pos=np.zeros(3), base_quat=np.array([1.0, 0, 0, 0]))
-        return forward_points(body, q, points.body, points.local, frame="base") @ rot.T + pos
-
     path = [np.clip(theta * (t + 1) / T, body.lower, body.upper) for t in range(T)]
     flows = [np.concatenate([project(intr, camera_points(a)), rng.normal(0, 300, (150, 2))], axis=1) for a in path]
     got = fit_without_database(body, points, intr, flows, np.tile(pos, (T, 1)),
