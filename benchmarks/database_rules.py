@@ -10,7 +10,8 @@ demonstrations, ``realism.calibration_split``: what settings are chosen on) and 
 apart; per class; and the classes answered for wrong ones. ``--outliers``: the emissions' per-feature outlier
 shares to compare (``MotionDatabase.log_emissions``; 0 is the plain Gaussian, the default is the method's),
 each scored over the capture's measured features as the method does. ``--states``: the HMM states per
-primitive (a side) to compare (default the database's 20).
+primitive (a side) to compare (default the database's 20). ``--adapt``: standard deviations (rad) of a posture
+offset per class and capture to compare (``adapted_log_likelihoods``; 0, the default, is the method's scoring).
 
 Rules (``RULES``): ``group`` (the feature groups' floors alone, as before issue 24), ``human`` (the human floor
 at ``FLOOR_SCALE``, the default), ``human<s>`` (at scale ``s``), ``human-rates`` (the human floor on the rates and the base's velocities only), ``balanced`` (the human floor, and every class
@@ -31,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.special import log_softmax
+from scipy.special import log_softmax, logsumexp
 
 from harness.engine import MotionDatabase, motion_features, recognize_features
 from harness.engine.database import DEFAULT_STATES
@@ -139,6 +140,52 @@ def log_likelihoods(db: MotionDatabase, motion, outlier: float) -> np.ndarray:
     return np.log(np.maximum(post, 1e-300))
 
 
+def forward_backward(log_b: np.ndarray, log_start: np.ndarray, log_trans: np.ndarray) -> tuple[float, np.ndarray]:
+    """One HMM's log-likelihood of emissions ``log_b`` ``(T, S)`` and its state occupancies ``(T, S)``."""
+    T, S = log_b.shape
+    log_alpha, log_beta = np.empty((T, S)), np.zeros((T, S))
+    log_alpha[0] = log_start + log_b[0]
+    for t in range(1, T):
+        log_alpha[t] = logsumexp(log_alpha[t - 1][:, None] + log_trans, axis=0) + log_b[t]
+    for t in range(T - 2, -1, -1):
+        log_beta[t] = logsumexp(log_trans + (log_b[t + 1] + log_beta[t + 1])[None], axis=1)
+    ll = logsumexp(log_alpha[-1])
+    return float(ll), np.exp(log_alpha + log_beta - ll)
+
+
+def adapted_log_likelihoods(db: MotionDatabase, features: np.ndarray, measured: np.ndarray, outlier: float,
+                            sigma: float, start_spread: float = 0.05, iterations: int = 4) -> np.ndarray:
+    """``(C,)`` each class's log-likelihood of a capture whose measured angles the class explains up to a constant
+    posture offset ``delta ~ N(0, sigma^2 I)`` (a performer's style; bias adaptation, as of a speaker in speech
+    recognition): ``delta`` by EM (the occupancies, then the Gaussian MAP step), the offset integrated out by
+    Laplace's method, ``log p(f - delta | c) + log N(delta; 0, sigma^2) + 1/2 log det(2 pi H^-1)``, ``H`` the
+    offset's posterior precision. Exact for one state and Gaussian emissions (``outlier`` 0). ``sigma`` 0: the
+    class log-likelihoods without an offset (the recursion's start as ``Recognizer``'s)."""
+    C, S = db.startprob_.shape
+    with np.errstate(divide="ignore"):
+        log_start = np.log((1 - start_spread) * db.startprob_ + start_spread / S)
+        log_trans = np.log(db.transmat_)
+    adapt = np.zeros(features.shape[1], dtype=bool)
+    adapt[ANGLES] = True
+    adapt &= measured
+    base = db.log_emissions(features, outlier=outlier, measured=measured)
+    out = np.empty(C)
+    for c in range(C):
+        log_b, delta = base[:, c], np.zeros(features.shape[1])
+        mean, var = db.means_[c][:, adapt], db.covars_[c][:, adapt]
+        for _ in range(iterations if sigma > 0 else 0):
+            _, gamma = forward_backward(log_b, log_start[c], log_trans[c])
+            residual = np.einsum("ts,tsj->j", gamma, (features[:, None, adapt] - mean[None]) / var[None])
+            delta[adapt] = residual / (gamma.sum(0) @ (1.0 / var) + sigma**-2.0)
+            log_b = db.log_emissions(features - delta, outlier=outlier, measured=measured)[:, c]
+        ll, gamma = forward_backward(log_b, log_start[c], log_trans[c])
+        if sigma > 0:
+            precision = gamma.sum(0) @ (1.0 / var) + sigma**-2.0
+            ll -= 0.5 * np.sum(delta[adapt] ** 2) / sigma**2 + 0.5 * np.sum(np.log(sigma**2 * precision))
+        out[c] = ll
+    return out
+
+
 def fit_offsets(scores: np.ndarray, frames: np.ndarray, labels: np.ndarray, classes) -> np.ndarray:
     """Per-class offsets ``o`` (nats per frame, mean 0) that maximise the held-out class log-likelihood
     ``sum_n log softmax_c(L_nc - o_c T_n)[y_n]`` (convex in ``o``)."""
@@ -157,18 +204,21 @@ def scenario(name: str, capture_dir: str):
 
 
 def evaluate(scenario_name: str, rule: str, capture_dir: str, development: set[str],
-             outliers: tuple[float, ...] = (FEATURE_OUTLIER,), n_states: int = DEFAULT_STATES
-             ) -> dict[float, list[dict]]:
+             outliers: tuple[float, ...] = (FEATURE_OUTLIER,), n_states: int = DEFAULT_STATES,
+             adapt: tuple[float, ...] = (0.0,)) -> dict[tuple[float, float], list[dict]]:
+    """Rows of every run by (outlier share, offset sd)."""
     dbs = Databases(rule, n_states)
-    rows = {eps: [] for eps in outliers}
+    rows = {key: [] for key in itertools.product(outliers, adapt)}
     for run in plan(scenario(scenario_name, capture_dir), "/nonexistent"):
         motion = test_motion(run)
         db = dbs(training_motions(run.config, motion))
-        for eps in outliers:
-            rows[eps].append({"condition": f"{scenario_name}/{run.condition_label}", "label": motion.label,
-                              "dev": motion.demo + motion.label in development, "classes": db.classes_,
-                              "scores": log_likelihoods(db, motion, eps), "frames": motion.n_frames})
-    for eps, rs in rows.items():
+        for eps, sigma in rows:
+            scores = (log_likelihoods(db, motion, eps) if sigma == 0 else adapted_log_likelihoods(
+                db, motion_features(motion), measured_features(motion), eps, sigma))
+            rows[eps, sigma].append({"condition": f"{scenario_name}/{run.condition_label}", "label": motion.label,
+                                     "dev": motion.demo + motion.label in development, "classes": db.classes_,
+                                     "scores": scores, "frames": motion.n_frames})
+    for (eps, _), rs in rows.items():
         if rule.startswith("offset-"):
             dev = [r for r in rs if r["dev"]]
             o = fit_offsets(np.array([r["scores"] for r in dev]), np.array([r["frames"] for r in dev]),
@@ -203,6 +253,8 @@ def main() -> int:
     parser.add_argument("--states", type=int, nargs="+", default=[DEFAULT_STATES],
                         help="HMM states per primitive (per side) to compare")
     parser.add_argument("--scenarios", default="sim2real,mixed,mocap", help="of: " + ", ".join(SCENARIOS))
+    parser.add_argument("--adapt", default="0", help="comma-separated sds (rad) of a posture offset per class and "
+                        "capture (0: none, the method)")
     args = parser.parse_args()
     # The capture scenario's training set without a test motion is every capture (retargeted once, cached).
     captures = training_motions(scenario("mocap", args.directory), None)
@@ -213,9 +265,12 @@ def main() -> int:
             if rule.startswith("offset-") and name != "sim2real":
                 continue
             t0 = time.perf_counter()
-            for eps, rows in evaluate(name, rule, args.directory, development, outliers, states).items():
+            adapt = tuple(float(x) for x in args.adapt.split(","))
+            for (eps, sigma), rows in evaluate(name, rule, args.directory, development, outliers, states,
+                                               adapt).items():
                 for cond in dict.fromkeys(r["condition"] for r in rows):
-                    print(f"{rule:10} K={states:<3} {eps:<5g} {cond:28} "
+                    offset = f" offset sd {sigma:g}" if sigma else ""
+                    print(f"{rule:10} K={states:<3} {eps:<5g}{offset} {cond:28} "
                           f"{summary([r for r in rows if r['condition'] == cond])}")
             print(f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
     return 0
