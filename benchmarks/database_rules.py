@@ -260,12 +260,12 @@ def main() -> int:
     captures = training_motions(scenario("mocap", args.directory), None)
     development = {m.demo + m.label for m in calibration_split(captures)[0]}
     outliers = tuple(float(x) for x in args.outliers.split(","))
+    adapt = tuple(float(x) for x in args.adapt.split(","))
     for rule, states in itertools.product(args.rules.split(","), args.states):
         for name in args.scenarios.split(","):
             if rule.startswith("offset-") and name != "sim2real":
                 continue
             t0 = time.perf_counter()
-            adapt = tuple(float(x) for x in args.adapt.split(","))
             for (eps, sigma), rows in evaluate(name, rule, args.directory, development, outliers, states,
                                                adapt).items():
                 for cond in dict.fromkeys(r["condition"] for r in rows):

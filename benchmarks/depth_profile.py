@@ -162,10 +162,10 @@ def posture_points(model, features: np.ndarray, angle_std: float | np.ndarray) -
 
 def mirrored_points(model, features: np.ndarray, angle_std: float | np.ndarray) -> tuple[list, list]:
     """``posture_points`` at ``features`` and at their mirror image (``features.mirror_features``; a variance
-    takes the mirror's permutation alone): the body and its reflected twin."""
-    from harness.engine.features import mirror_features
+    or std ``features.mirror_variances``): the body and its reflected twin."""
+    from harness.engine.features import mirror_features, mirror_variances
 
-    mirrored_std = angle_std if np.ndim(angle_std) == 0 else np.abs(mirror_features(np.asarray(angle_std)))
+    mirrored_std = angle_std if np.ndim(angle_std) == 0 else mirror_variances(angle_std)
     return (posture_points(model, features, angle_std),
             posture_points(model, mirror_features(features), mirrored_std))
 
