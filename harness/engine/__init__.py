@@ -8,7 +8,7 @@ from harness.engine.recognition import Recognizer
 from harness.engine.recognition import recognize_features
 from harness.engine.estimate import Estimate
 from harness.engine.tracker import Tracker
-from harness.engine.tracker import TrackerConfig
+from harness.engine.config import TrackerConfig
 
 __all__ = ["Estimate", "MotionDatabase", "Recognizer", "Tracker", "TrackerConfig", "motion_features",
            "recognize_features"]

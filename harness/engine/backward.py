@@ -10,7 +10,7 @@ the causal pass ended with:
   evidence), the others from the causal leader's final cloud (the body's settled pose, whatever the primitive);
 - each start also spawns its twin (``track.twin``), since a settled pose may still be the twin's.
 
-With ``backward_live_only``, only the primitives with a live track start (about half the pass's time).
+With ``offline.backward_live_only``, only the primitives with a live track start (about half the pass's time).
 
 Each backward track believes only its primitive (late commitment, as in the causal pass), is moved, weighed,
 recognised, recovered, pruned and merged by the causal loop's own stages, with the reversed model. At the end
@@ -27,6 +27,7 @@ from dataclasses import replace
 import numpy as np
 
 from harness.engine.confidence import calibrated
+from harness.engine.config import BeliefSettings
 from harness.engine.estimate import Estimate
 from harness.engine.particle_filter import ParticleCloud
 from harness.engine.pose_source import ParticleTracks
@@ -41,16 +42,15 @@ class SettledStarts(ParticleTracks):
     carry): unweighed, the smoothed heading was 4.3 +- 2.8 deg worse on 240 development runs (docs/engine.md; measured
     while the starts that shared the leader's cloud were weighed once per holder, fixed 2026-12-06)."""
 
-    def __init__(self, scorer, rng, starts: list[tuple[int, str, ParticleCloud]]):
-        super().__init__(scorer, rng)
+    def __init__(self, scorer, rng, starts: list[tuple[int, str, ParticleCloud]], **settings):
+        super().__init__(scorer, rng, **settings)
         self.starts = starts
 
     def start(self, frame) -> list[Track]:
-        cfg = self.scorer.config
         tracks = []
         for primitive, origin, cloud in self.starts:
             variants = [(origin, cloud.quats.copy())]
-            if cfg.twin_track:
+            if self.spawn_settings.twin:
                 variants.append((origin + "~twin", twin(cloud.quats, frame.gravity)))
             for name, quats in variants:
                 # Every start its own copy: the primitives without a live track start from the same leader's
@@ -79,14 +79,14 @@ def settled_starts(final_tracks: list[Track], n_classes: int, live_only: bool = 
     return starts
 
 
-def both_passes(offline: Estimate, forward: FrameRecord, backward: FrameRecord, config) -> Estimate:
-    """The offline estimate with its class posterior decided by both passes' final tracks (``offline_both_passes``):
+def both_passes(offline: Estimate, forward: FrameRecord, backward: FrameRecord, belief: BeliefSettings) -> Estimate:
+    """The offline estimate with its class posterior decided by both passes' final tracks (``offline.both_passes``):
     a primitive's evidence is the best path either pass found for it (each track's evidence is the whole
     clip's, along its own path), mixed as ``FrameRecord.log_class_posterior`` mixes one pass's tracks."""
     both = FrameRecord(forward.index, forward.tracks + backward.tracks, None, 0.0)
     log_post = both.log_class_posterior()
     T = len(offline.qpos)
-    post = calibrated(log_post[None], config.posterior_temperature, config.posterior_floor)
+    post = calibrated(log_post[None], belief.posterior_temperature, belief.posterior_floor)
     return replace(offline, class_posterior=np.repeat(post, T, axis=0),
                    raw_log_posterior=np.repeat(log_post[None], T, axis=0))
 

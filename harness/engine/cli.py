@@ -74,14 +74,15 @@ def track(args: argparse.Namespace) -> int:
     """Run the engine on a saved observation: recognised primitive per frame, recovered 56-DOF trajectory."""
     from harness.body import BodyModel
     from harness.engine.database import MotionDatabase
-    from harness.engine.tracker import Tracker, TrackerConfig
+    from harness.engine.config import TrackerConfig
+    from harness.engine.tracker import Tracker
     from harness.io import check_output_file, inspect_npz
     from harness.observation import Observation
 
     if args.out is not None:
         check_output_file(args.out)             # before the tracking, not after it
     _check_seed(args.seed)
-    config = TrackerConfig(particles=args.particles)
+    config = TrackerConfig.from_dict({"tracks": {"particles": args.particles}})
     obs = Observation.load(args.observation)
     inspect_npz(args.database, EngineError, "database", MAX_DATABASE_BYTES)
     db = MotionDatabase.load(args.database)

@@ -1,265 +1,180 @@
-"""The engine's settings: every tuned constant by name, with where its value came from."""
+"""The engine's settings: one frozen section per stage, each field declared once with its default, unit, bounds
+and meaning (``harness.settings``). A stage receives its own section only; ``TrackerConfig`` holds them all and
+checks the rules between sections. Where each value came from: ``docs/settings.md``."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 from harness.errors import EngineError
+from harness.settings import SectionBase, from_sections, parse_assignments, setting
+
+# The first frame weighs particles x spawn.factor hypotheses against every model point, about 190 bytes per
+# hypothesis-point (0.45 GB for 2000 x 8 x 150): 2e7 of them is about 4 GB.
+MAX_HYPOTHESIS_POINTS = 20_000_000
+COUNT = "[0, 1000]"         # steps, tracks, classes, frames: beyond is a typo, not a setting
+
+
+class _Section(SectionBase, label="engine setting", error=EngineError):
+    pass
+
+
+@dataclass(frozen=True)
+class ModelSettings(_Section, name="model"):
+    """The engine's own body-surface sample (``EngineModel.build``)."""
+    points: int = setting(120, "", "[1, 100000]", "model points, spread evenly over the body", was="model_points")
+    seed: int = setting(7, "", ">= 0", "their sample's seed, independent of the markers", was="model_seed")
+
+
+@dataclass(frozen=True)
+class SpawnSettings(_Section, name="spawn"):
+    """The first frame with flows: a wide cloud over the coarse prior, and the tracks spawned from it."""
+    distance: tuple[float, float] = setting((2.0, 8.0), "m", "> 0", "prior range of the subject's distance",
+                                            size=2, ordered="<", was="init_distance")
+    elevation: tuple[float, float] = setting((-10.0, 40.0), "deg", "(-90, 90)", "prior range of the camera's pitch "
+                                             "(no gravity given)", size=2, ordered="<=", was="init_elevation")
+    factor: int = setting(3, "", "[1, 1000]", "the first frame weighs this many times the particles", was="init_factor")
+    depth_band: tuple[float, float] = setting((0.35, 1.3), "", "[0.1, 10]", "first depths log-uniform over this "
+                                              "times the flows' guess", size=2, ordered="<", was="init_depth_band")
+    keep: float = setting(0.25, "", "(0, 1]", "best share of that cloud re-weighed per primitive", was="init_keep")
+    min_ess: float = setting(5.0, "", ">= 0", "effective particles near a track to start it (else the lead's, turned)",
+                             was="min_spawn_ess")
+    turns: tuple[float, ...] = setting((90.0, 180.0, -90.0), "deg", "", "tracks at these turns of the lead",
+                                       size=(0, 16), was="track_turns")
+    twin: bool = setting(True, "", "", "and a track at the lead's depth-reflected twin", was="twin_track")
+    per_class: bool = setting(True, "", "", "a set per primitive believing only it (not streams)", was="class_tracks")
+
+    @property
+    def n_tracks(self) -> int:
+        """Tracks spawned per set (per primitive with ``per_class``)."""
+        return 1 + len(self.turns) + int(self.twin)
+
+
+@dataclass(frozen=True)
+class LikelihoodSettings(_Section, name="likelihood"):
+    """How a frame's unlabeled flows are scored under projected distributions (``Scorer``, ``Frames``)."""
+    noise_px: float = setting(1.0, "px", "> 0", "assumed pixel noise of flow positions")
+    outlier_prob: float = setting(0.05, "", "(0, 1)", "share of flows from the uniform outlier term")
+    weight_iterations: int = setting(2, "", COUNT, "EM steps on the model points' mixture weights")
+    weight_smoothing: float = setting(10.0, "flows", ">= 0", "pseudo-flows holding those weights to the prior")
+    n_eff_filter: float = setting(4.0, "flows", "> 0", "tempering: a frame counts as this many flows for the poses")
+    n_eff_recognition: float = setting(3.0, "flows", "> 0", "... for recognition and the evidence")
+    recognise_velocities: bool = setting(True, "", "", "at a tracked pose, recognise velocities given positions")
+    self_occlusion: bool = setting(True, "", "", "the body hides itself in the likelihood (depth order)")
+    occlusion_radius: float = setting(1.0, "patch radii", ">= 0", "footprint of a point's patch")
+    occlusion_depth: float = setting(0.08, "m", ">= 0", "a point must be this much nearer to cover another")
+    open_memory_s: float = setting(1.0, "s", "", "flows this recent mark the open region (negative evidence; < 0: off)")
+    open_cell_px: float = setting(16.0, "px", "> 0", "the grid of that region")
+    floor_std: float = setting(0.05, "m", "> 0", "known floor: the lowest body point's height about it ...")
+    floor_flight: float = setting(0.2, "", "[0, 1)", "... or, with this probability, in flight ...")
+    floor_flight_height: float = setting(0.8, "m", "> 0", "... up to this height")
+
+
+@dataclass(frozen=True)
+class BeliefSettings(_Section, name="belief"):
+    """Each track's forward recursion over primitives and states, and the class posterior's calibration."""
+    start_spread: float = setting(0.05, "", "[0, 1]", "start probability spread over all states")
+    prune: float = setting(1e-2, "", "(0, 1)", "states below this times their primitive's best are not scored")
+    stream_prune: float = setting(1e-4, "", "(0, 1)", "... in the switching recursion of streams")
+    primitive_switch: float = setting(0.0, "per frame", "[0, 1)", "probability of a primitive change (0: one)")
+    posterior_temperature: float = setting(3.8, "", "> 0", "the class posterior's calibration: temperature ...")
+    posterior_floor: float = setting(0.0229, "", "[0, 1)", "... and floor (harness.engine.confidence)")
+
+
+@dataclass(frozen=True)
+class MotionSettings(_Section, name="motion"):
+    """How particles move between frames: process noise, and proposals around recovery's pose."""
+    position_noise: float = setting(0.5, "m/sqrt(s)", ">= 0", "process noise of the base position")
+    rotation_noise: float = setting(0.3, "rad/sqrt(s)", ">= 0", "... of its orientation (yaw when gravity is known)")
+    tilt_noise: float = setting(0.15, "rad/sqrt(s)", ">= 0", "... of its tilt when gravity is known")
+    guide_fraction: float = setting(0.1, "", "[0, 1)", "share of a track's particles proposed at recovery's pose")
+    guide_rotation_std: float = setting(0.05, "rad", ">= 0", "their spread (position: half the cloud's)")
+
+
+@dataclass(frozen=True)
+class TracksSettings(_Section, name="tracks"):
+    """The tracks' particle budget, what their particles are weighed under, and which tracks go on."""
+    particles: int = setting(500, "", "[1, 1000000]", "particles in total over all tracks")
+    particles_max: int = setting(50, "", ">= 1", "... and at most this many per track", was="track_particles_max")
+    prune_nats: float = setting(30.0, "nats", "> 0", "a track this far behind is dropped", was="track_prune_nats")
+    merge_deg: float = setting(30.0, "deg", ">= 0", "tracks this close in orientation ...", was="track_merge_deg")
+    merge_m: float = setting(0.3, "m", ">= 0", "... and position merge (the weaker goes)", was="track_merge_m")
+    weigh_by_belief: bool = setting(False, "", "", "streams: weigh under the likeliest primitives (else all alike)")
+    weigh_classes: int = setting(3, "", "[1, 1000]", "by belief: at most this many primitives ...")
+    weigh_class_mass: float = setting(0.95, "", "(0, 1]", "... the fewest that hold this much of the belief")
+
+
+@dataclass(frozen=True)
+class ReinjectionSettings(_Section, name="reinjection"):
+    """Alternatives of the leading primitives' paths (``ParticleTracks.reinject``)."""
+    every: int = setting(5, "frames", COUNT, "frames between re-injections (0: none)", was="reinject_every")
+    window: int = setting(10, "frames", "[1, 1000]", "frames an alternative is replayed over", was="reinject_window")
+    classes: int = setting(3, "", "[1, 1000]", "the best track of this many primitives", was="reinject_classes")
+    turns: tuple[float, ...] = setting((45.0, -45.0, 90.0, -90.0, 180.0), "deg", "", "alternatives: turns ...",
+                                       size=(0, 16), was="reinject_turns")
+    twin: bool = setting(True, "", "", "... the twin ...", was="reinject_twin")
+    depths: tuple[float, ...] = setting((0.85, 1.18), "", "[0.2, 5]", "... and depth scales of the path",
+                                        size=(0, 5), was="reinject_depths")
+    margin: float = setting(0.0, "nats", ">= 0", "a newcomer must beat its parent by this", was="reinject_margin")
+
+
+@dataclass(frozen=True)
+class RecoverySettings(_Section, name="recovery"):
+    """Angles and pose refined against the flows under the HMM prior (``recovery.recover``)."""
+    tracks: int = setting(1, "", COUNT, "tracks (most evidence first) refined each frame", was="recover_tracks")
+    em_iterations: int = setting(3, "", "[1, 1000]", "re-assignments of flows to model points")
+    refine_iterations: int = setting(2, "", COUNT, "Gauss-Newton steps per M-step")
+    position_std: float = setting(0.25, "m", "> 0", "least position room about the filter", was="refine_position_std")
+    rotation_std: float = setting(0.3, "rad", "> 0", "rotation freedom about it", was="refine_rotation_std")
+
+
+@dataclass(frozen=True)
+class OfflineSettings(_Section, name="offline"):
+    """The offline (hindsight) estimate: the backward pass and the trajectory smoother."""
+    smoothing_frames: float = setting(2.0, "frames", ">= 0", "std of the offline trajectory smoother")
+    backward_pass: bool = setting(True, "", "", "re-track backwards from the final poses (else smooth the leader)")
+    backward_live_only: bool = setting(False, "", "", "... only for the primitives live at the end")
+    both_passes: bool = setting(True, "", "", "... and decide the class by both passes", was="offline_both_passes")
 
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Engine settings. Distances in metres, angles in degrees unless a name says rad, noise in pixels.
-    Where a value was chosen by measurement, the comment says on what."""
+    """Every engine setting, by section (``engine.<section>.<field>`` in a scenario)."""
 
-    particles: int = 500                     # in total over all tracks (200 before the tracks per primitive)
-    track_particles_max: int = 50            # ... and at most this many per track
-                                             # (it binds once ten or fewer are left; 240 development runs, seeds
-                                             # 101-103, against no cap:
-                                             # `full` 0 fixed, 1 lost, heading -0.5 deg, smoothed 5 / 1 and
-                                             # -6.0 deg, 36% less time; 25: 4 / 4; docs/engine.md)
-    model_points: int = 120                  # the engine's own surface sample, spread evenly
-                                             # (150 drawn at random until 2026-12-06; docs/engine.md, "Speed")
-    model_seed: int = 7                      # ... seeded independently of the markers
-    init_distance: tuple[float, float] = (2.0, 8.0)    # prior range of the subject's distance
-    init_elevation: tuple[float, float] = (-10.0, 40.0)  # prior range of the camera's pitch (no gravity given)
-    init_factor: int = 3                     # the first frame weighs this many times more particles (8 before;
-                                             # 3: the same recognition on 80 development runs, seed 101, 7 runs
-                                             # fixed, 7 lost, heading +1.9 +- 3.2 deg, a third less time)
-    init_depth_band: tuple[float, float] = (0.35, 1.3)  # first depths log-uniform over this x the guess
-                                             # (the flows'; [0.6, 1.4]: 12 fixed, 9 lost of 160 development runs,
-                                             # the wall's baselink error +0.4 m; a share drawn about the guess:
-                                             # no gain; docs/engine.md)
-    init_keep: float = 0.25                  # ... and re-weighs the best share of them primitive by primitive
-    noise_px: float = 1.0                    # assumed pixel noise of flow positions
-    outlier_prob: float = 0.05
-    weight_iterations: int = 2               # EM steps on the model points' mixture weights (docs/engine.md)
-    open_memory_s: float = 1.0               # s: flows seen this recently mark the region obstacles leave open
-                                             # (negative evidence there; < 0 turns it off)
-    open_cell_px: float = 16.0               # px, the grid of that region
-    weight_smoothing: float = 10.0           # pseudo-flows holding those weights towards the prior (issue 5;
-                                             # 40: 80% against 90% on 60 development runs; 3: 6 fixed, 6 lost
-                                             # of 160)
-    n_eff_filter: float = 4.0                # tempering: a frame counts as at most this many flows (dev seeds)
-                                             # (3: 11 fixed / 17 lost, 6: smoothed heading +5.7 deg; 240 runs)
-    n_eff_recognition: float = 3.0           # ... for the recognition and the evidence (dev seeds; 6: 77%
-                                             # against 90% on 60 development runs; on 240 runs of seeds
-                                             # 101-103, 2: 14 fixed / 11 lost, 4.5: 8 / 18)
-    recognise_velocities: bool = True        # recognition at a tracked pose scores velocities given positions
-                                             # (each flow's, likelihood.velocity_log_likelihoods; 240
-                                             # development runs, seeds 101-103: `full` 86.7 -> 91.2%, 19 fixed /
-                                             # 8 lost, smoothed 90.4 -> 93.3%, 15 / 8; half the positions' term
-                                             # taken off: 15 / 12 and 9 / 6; docs/engine.md)
-    start_spread: float = 0.05               # start probability spread over all states
-    prune: float = 1e-2                      # states below this times their primitive's best are not scored
-                                             # (1e-4 before; 240 development runs, seeds 101-103: `full` 10
-                                             # fixed / 10 lost, smoothed 8 / 3, heading +0.9 and -1.0 deg, the
-                                             # recognition stage 14.2 -> 5.6 ms per frame; 0.05: smoothed
-                                             # heading +8.7 deg; docs/engine.md, Speed)
-    stream_prune: float = 1e-4               # ... and in the switching recursion of streams, where a primitive
-                                             # entered mid-stream starts from its spread start distribution (1e-2
-                                             # drops those states: 40 development streams, frame accuracy 0.648
-                                             # -> 0.572 and 0.539 -> 0.416 behind a 30% wall)
-    weigh_by_belief: bool = False            # streams: particles weighed under the belief's likeliest primitives
-                                             # (True, before) or every primitive alike (False: the class belief
-                                             # does not steer the pose; 40 development streams, seeds 101-102,
-                                             # frame accuracy 0.40 -> 0.59 and 0.33 -> 0.49 behind a 30% wall;
-                                             # docs/streams.md)
-    weigh_classes: int = 3                   # by belief: at most this many primitives ...
-    weigh_class_mass: float = 0.95           # ... the fewest that hold this much of the track's belief
-    primitive_switch: float = 0.0            # per-frame probability of a primitive change (0: one per sequence)
-    position_noise: float = 0.5              # m / sqrt(s), process noise of the base position (0.15 of issue 5:
-                                             # 72% against 75%, base 0.54 against 0.49 m on 60 development runs:
-                                             # a belief's wrong base velocity, a walk for a run, must be caught up)
-    rotation_noise: float = 0.3              # rad / sqrt(s), of the base orientation (yaw when gravity is known)
-    tilt_noise: float = 0.15                 # rad / sqrt(s), of the tilt when gravity is known
-                                             # (0.05 could not follow the pelvis's own lean: with gravity and with the
-                                             # floor, 480 development runs, seeds 124-125 at 10 and 40 deg,
-                                             # full_smoothed 22 fixed / 5 lost, heading +0.9 deg on balance;
-                                             # docs/engine.md, "Camera prior")
-    floor_std: float = 0.05                  # m: the lowest body point's height about a known floor ...
-    floor_flight: float = 0.2                # ... or, with this probability, in flight ...
-    floor_flight_height: float = 0.8         # ... up to this height (m)
-    refine_iterations: int = 2               # Gauss-Newton steps per M-step of recovery
-    refine_position_std: float = 0.25        # m: least pose freedom recovery has around the filter's estimate
-    refine_rotation_std: float = 0.3         # rad: recovery's rotation freedom around the filter's estimate
-    recover_tracks: int = 1                  # tracks (most evidence first) refined by recovery each frame (2:
-                                             # 73% against 72% on 60 development runs, at twice the cost; on
-                                             # 240 runs of seeds 101-103, 13 fixed / 16 lost; 0: the wall's
-                                             # baselink +0.09 m and gt_base's posture +11 mm for 14% less
-                                             # time, 160 runs of seeds 136-137; docs/engine.md, Recovery)
-    em_iterations: int = 3                   # re-assignments of flows to model points in recovery (issue 5;
-                                             # 2: 10 fixed / 11 lost, smoothed 7 / 10 on 240 development runs)
-    guide_fraction: float = 0.1              # share of a track's particles proposed around recovery's pose
-    guide_rotation_std: float = 0.05         # rad, spread of those proposals (position: half the cloud's spread)
-    track_turns: tuple[float, ...] = (90.0, 180.0, -90.0)   # tracks spawned at these turns of the leader
-    twin_track: bool = True                  # and at the leader's depth-reflected twin
-    class_tracks: bool = True                # these tracks once per primitive, each from the first frame weighed
-                                             # under that primitive and believing only it (not in streams;
-                                             # issue 21, 40 development runs per condition, seed 101: 87.5%
-                                             # against 72.5%, 85 against 65 behind a wall at 40%)
-    self_occlusion: bool = True              # the body hides itself in the likelihood (depth order)
-    occlusion_radius: float = 1.0            # footprint of a point's patch, in patch radii
-    occlusion_depth: float = 0.08            # m: a point must be this much nearer to cover another
-    smoothing_frames: float = 2.0            # std (frames) of the offline estimate's trajectory smoother
-    backward_pass: bool = True               # the offline estimate re-tracks the clip backwards from the causal
-                                             # pass's final poses (engine.backward; else the causal leader smoothed)
-    backward_live_only: bool = False         # ... only the primitives with a live track at the causal end
-                                             # (half the backward pass's time; smoothed heading +4.1 deg,
-                                             # 240 development runs: docs/engine.md, Speed)
-    offline_both_passes: bool = True         # ... and decides the class by both passes' final tracks (else the
-                                             # backward pass's alone; together 12 fixed, 5 lost of 160
-                                             # development runs, smoothed heading 40.5 -> 30.7 deg)
-    posterior_temperature: float = 3.8       # the class posterior's calibration (harness.engine.confidence) ...
-    posterior_floor: float = 0.0229          # ... fitted by benchmarks/posterior_calibration.py on 160
-                                             # development runs (seeds 101-102, recognition from velocities;
-                                             # pooled ECE 0.062 raw, 0.139 under the values before (10.5, 0.074),
-                                             # 0.012 fitted; held out on seed 103: 0.090, 0.152, 0.047; wrong
-                                             # answers above 0.99: 44% raw, 0% fitted)
-    min_spawn_ess: float = 5.0               # a track starts from the first frame's particles near it if they
-                                             # hold this many effective particles, else from the lead's turned
-    track_prune_nats: float = 30.0           # a track trailing the best by this much evidence is dropped (60:
-                                             # 90% either way on 60 development runs)
-    track_merge_deg: float = 30.0            # tracks closer than this in orientation ...
-    track_merge_m: float = 0.3               # ... and this in position merge (the one with less evidence goes)
-    reinject_every: int = 5                  # frames between re-injections of alternatives (0: none; track.py)
-                                             # 6 runs fixed, 0 lost of 160 development runs (seeds 101-102)
-    reinject_window: int = 10                # frames an alternative's path is replayed over
-    reinject_classes: int = 3                # the best track of this many primitives (most evidence) gets them
-                                             # (5: 2 fixed, 3 lost of 240 development runs, seeds 101-103)
-    reinject_turns: tuple[float, ...] = (45.0, -45.0, 90.0, -90.0, 180.0)   # alternatives: turns (deg) ...
-    reinject_twin: bool = True               # ... the twin ...
-    reinject_depths: tuple[float, ...] = (0.85, 1.18)   # ... and depth scales of the track's path
-    reinject_margin: float = 0.0             # nats a newcomer's score must beat its parent's by
+    model: ModelSettings = field(default_factory=ModelSettings)
+    spawn: SpawnSettings = field(default_factory=SpawnSettings)
+    likelihood: LikelihoodSettings = field(default_factory=LikelihoodSettings)
+    belief: BeliefSettings = field(default_factory=BeliefSettings)
+    motion: MotionSettings = field(default_factory=MotionSettings)
+    tracks: TracksSettings = field(default_factory=TracksSettings)
+    reinjection: ReinjectionSettings = field(default_factory=ReinjectionSettings)
+    recovery: RecoverySettings = field(default_factory=RecoverySettings)
+    offline: OfflineSettings = field(default_factory=OfflineSettings)
 
     def __post_init__(self):
-        positive = {"particles": self.particles, "model_points": self.model_points, "init_factor": self.init_factor,
-                    "n_eff_filter": self.n_eff_filter, "n_eff_recognition": self.n_eff_recognition,
-                    "noise_px": self.noise_px, "em_iterations": self.em_iterations}
-        for name, value in positive.items():
-            if not value > 0:
-                raise EngineError(f"engine setting {name} must be positive, got {value}")
-        for name in ("outlier_prob", "prune", "stream_prune"):
-            value = getattr(self, name)
-            if not 0 < value < 1:
-                raise EngineError(f"engine setting {name} must be in (0, 1), got {value}")
-        if not 0 <= self.primitive_switch < 1:
-            raise EngineError(f"engine setting primitive_switch must be in [0, 1), got {self.primitive_switch}")
-        if not 0 <= self.guide_fraction < 1:
-            raise EngineError(f"engine setting guide_fraction must be in [0, 1), got {self.guide_fraction}")
-        near, far = self.init_distance
-        if not 0 < near < far:
-            raise EngineError(f"engine setting init_distance must be [near, far] with 0 < near < far, "
-                              f"got {list(self.init_distance)}")
-        lo, hi = self.init_elevation
-        if not -90 < lo <= hi < 90:
-            raise EngineError(f"engine setting init_elevation must be [low, high] degrees within (-90, 90), "
-                              f"got {list(self.init_elevation)}")
-        if self.particles < self.n_tracks:
-            raise EngineError(f"engine setting particles ({self.particles}) must be at least the number of "
-                              f"tracks ({self.n_tracks})")
-        _check_bounds(self)
+        n, spawn = self.tracks.particles, self.spawn
+        if n < spawn.n_tracks:
+            raise EngineError(f"engine setting tracks.particles ({n}) must be at least the tracks spawned "
+                              f"({spawn.n_tracks})")
+        if round(spawn.keep * n * spawn.factor) < 1:
+            raise EngineError(f"engine setting spawn.keep ({spawn.keep}) keeps none of the first frame's "
+                              f"{n * spawn.factor} particles")
+        if n * spawn.factor * self.model.points > MAX_HYPOTHESIS_POINTS:
+            raise EngineError(f"engine settings tracks.particles ({n}) x spawn.factor ({spawn.factor}) x model.points "
+                              f"({self.model.points}) = {n * spawn.factor * self.model.points:.3g} hypothesis-points "
+                              f"on the first frame, more than {MAX_HYPOTHESIS_POINTS:.0e} (about 190 bytes each)")
 
-    @property
-    def n_tracks(self) -> int:
-        """Tracks spawned per set (per primitive with ``class_tracks``)."""
-        return 1 + len(self.track_turns) + int(self.twin_track)
+    @classmethod
+    def from_dict(cls, values: dict) -> TrackerConfig:
+        """From ``{section: {field: value}}`` or ``{"section.field": value}``; a former flat name is refused with
+        its new place."""
+        return from_sections(cls, values, EngineError, "engine setting")
 
-
-# Sizes the engine allocates by: the first frame weighs particles x init_factor hypotheses against every
-# model point, about 190 bytes per hypothesis-point (measured: 0.45 GB for 2000 x 8 x 150, 1.7 GB for
-# 4000 x 8 x 300), so 2e7 of them is about 4 GB. The settings ran before only to fail with a MemoryError.
-MAX_PARTICLES = 1_000_000
-MAX_MODEL_POINTS = 100_000
-MAX_HYPOTHESIS_POINTS = 20_000_000
-MAX_ITERATIONS = 1000            # EM, weight and Gauss-Newton steps, recovered tracks, classes weighed
-MAX_TRACK_TURNS = 16
-MAX_DEPTH_SCALES = 5
-# Settings that must be >= 0, > 0, or within [lo, hi] (None: open), beyond the checks above; each ran before
-# with a meaningless result or failed deep inside a run (issue 23).
-_AT_LEAST_ZERO = ("reinject_every", "reinject_margin", "model_seed", "weight_iterations", "refine_iterations", "recover_tracks", "smoothing_frames",
-                  "weight_smoothing", "position_noise", "rotation_noise", "tilt_noise", "guide_rotation_std",
-                  "occlusion_radius", "occlusion_depth", "min_spawn_ess", "track_merge_deg", "track_merge_m")
-_ABOVE_ZERO = ("track_particles_max", "reinject_window", "reinject_classes", "open_cell_px", "posterior_temperature", "floor_std", "floor_flight_height",
-               "refine_position_std", "refine_rotation_std", "track_prune_nats")
-_WITHIN = {"init_keep": (0.0, 1.0, "(0, 1]"), "weigh_class_mass": (0.0, 1.0, "(0, 1]"), "start_spread": (None, 1.0, "[0, 1]"),
-           "posterior_floor": (None, 1.0, "[0, 1)"), "floor_flight": (None, 1.0, "[0, 1)")}
-_COUNTS = ("reinject_every", "reinject_window", "reinject_classes", "weight_iterations", "refine_iterations", "recover_tracks", "em_iterations", "weigh_classes",
-           "init_factor")
-
-
-def _check_bounds(cfg: TrackerConfig) -> None:
-    """Finite numbers, signs, ranges and the sizes above (``TrackerConfig.__post_init__``)."""
-    import math
-    from dataclasses import fields
-
-    for f in fields(cfg):
-        value = getattr(cfg, f.name)
-        items = value if isinstance(value, tuple) else (value,)
-        for v in items:
-            if isinstance(v, bool):
-                continue
-            if not isinstance(v, (int, float)) or (isinstance(v, float) and not math.isfinite(v)):
-                raise EngineError(f"engine setting {f.name} must be a finite number, got {value!r}")
-    for name in _AT_LEAST_ZERO:
-        if not getattr(cfg, name) >= 0:
-            raise EngineError(f"engine setting {name} must be >= 0, got {getattr(cfg, name)}")
-    for name in _ABOVE_ZERO:
-        if not getattr(cfg, name) > 0:
-            raise EngineError(f"engine setting {name} must be positive, got {getattr(cfg, name)}")
-    for name, (lo, hi, text) in _WITHIN.items():
-        v = getattr(cfg, name)
-        low_ok = v >= 0 if lo is None else v > lo
-        high_ok = v < hi if text.endswith(")") else v <= hi
-        if not (low_ok and high_ok):
-            raise EngineError(f"engine setting {name} must be in {text}, got {v}")
-    if cfg.weigh_classes < 1:
-        raise EngineError(f"engine setting weigh_classes must be at least 1, got {cfg.weigh_classes}")
-    for name in _COUNTS:
-        if getattr(cfg, name) > MAX_ITERATIONS:
-            raise EngineError(f"engine setting {name} must be at most {MAX_ITERATIONS}, got {getattr(cfg, name)}")
-    if cfg.particles > MAX_PARTICLES:
-        raise EngineError(f"engine setting particles must be at most {MAX_PARTICLES}, got {cfg.particles}")
-    if cfg.model_points > MAX_MODEL_POINTS:
-        raise EngineError(f"engine setting model_points must be at most {MAX_MODEL_POINTS}, got {cfg.model_points}")
-    if len(cfg.track_turns) > MAX_TRACK_TURNS:
-        raise EngineError(f"engine setting track_turns lists {len(cfg.track_turns)} turns, at most "
-                          f"{MAX_TRACK_TURNS}")
-    if len(cfg.init_depth_band) != 2 or not 0.1 <= cfg.init_depth_band[0] < cfg.init_depth_band[1] <= 10.0:
-        raise EngineError(f"engine setting init_depth_band must be [near, far] scales of the depth guess with "
-                          f"0.1 <= near < far <= 10, got {list(cfg.init_depth_band)}")
-    if len(cfg.reinject_turns) > MAX_TRACK_TURNS or len(cfg.reinject_depths) > MAX_DEPTH_SCALES or not all(
-            0.2 <= s <= 5.0 for s in cfg.reinject_depths):
-        raise EngineError(f"engine settings reinject_turns and reinject_depths list at most {MAX_TRACK_TURNS} turns "
-                          f"and {MAX_DEPTH_SCALES} depth scales within [0.2, 5], got {list(cfg.reinject_turns)} and "
-                          f"{list(cfg.reinject_depths)}")
-    if round(cfg.init_keep * cfg.particles * cfg.init_factor) < 1:
-        raise EngineError(f"engine setting init_keep ({cfg.init_keep}) keeps no particle of the first frame's "
-                          f"{cfg.particles * cfg.init_factor}")
-    work = cfg.particles * cfg.init_factor * cfg.model_points
-    if work > MAX_HYPOTHESIS_POINTS:
-        raise EngineError(f"engine setting particles ({cfg.particles}) x init_factor ({cfg.init_factor}) x "
-                          f"model_points ({cfg.model_points}) = {work:.3g} hypothesis-points on the first frame, "
-                          f"more than {MAX_HYPOTHESIS_POINTS:.0e} (about 190 bytes each)")
+    def with_values(self, values: dict) -> TrackerConfig:
+        """A copy with ``{section: {field: value}}`` replaced (``settings_from_strings``' output)."""
+        return replace(self, **{s: replace(getattr(self, s), **v) for s, v in values.items()})
 
 
 def settings_from_strings(items: list[str]) -> dict:
-    """``["key=value", ...]`` (a command line's engine settings) as TrackerConfig keyword arguments, each value
-    typed by its field's default; raises EngineError naming an unknown key or a malformed value."""
-    default, out = TrackerConfig(), {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not hasattr(default, key):
-            raise EngineError(f"engine setting {item!r}: expected KEY=VALUE with a TrackerConfig field as KEY")
-        kind = type(getattr(default, key))
-        try:
-            if kind is bool:
-                out[key] = {"true": True, "1": True, "yes": True, "false": False, "0": False, "no": False}[value.lower()]
-            elif kind is tuple:
-                out[key] = tuple(float(v) for v in value.split(",") if v)
-            else:
-                out[key] = kind(value)
-        except (KeyError, ValueError):
-            raise EngineError(f"engine setting {key}: cannot read {value!r} as {kind.__name__}") from None
-    return out
-
+    """``["section.field=value", ...]`` (a command line's engine settings) for ``TrackerConfig.with_values``."""
+    return parse_assignments(TrackerConfig, items, EngineError, "engine setting")

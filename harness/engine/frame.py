@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.engine.config import TrackerConfig
+from harness.engine.config import LikelihoodSettings
 from harness.engine.open_region import OpenMask, OpenRegion
 from harness.errors import EngineError
 from harness.observation import Observation
@@ -50,17 +50,17 @@ class Frame:
 class Frames:
     """Builds a sequence's frames in order (state: the open region's memory and the frame count)."""
 
-    def __init__(self, intr: Intrinsics, fps: float, config: TrackerConfig, camera_moves: bool = False):
+    def __init__(self, intr: Intrinsics, fps: float, settings: LikelihoodSettings, camera_moves: bool = False):
         if not fps > 0:
             raise EngineError(f"fps must be positive, got {fps}")
         self.intr, self.fps = intr, float(fps)
         self._count = 0
-        if config.open_memory_s < 0:
+        if settings.open_memory_s < 0:
             self._region = None
         else:
             # A moving camera sees a new image every frame: only the current frame's flows mark it open.
-            memory = 0 if camera_moves else int(round(config.open_memory_s * self.fps))
-            self._region = OpenRegion(intr.width, intr.height, config.open_cell_px, memory)
+            memory = 0 if camera_moves else int(round(settings.open_memory_s * self.fps))
+            self._region = OpenRegion(intr.width, intr.height, settings.open_cell_px, memory)
 
     def next(self, flows: np.ndarray, camera_motion: np.ndarray | None = None, gravity: np.ndarray | None = None,
              camera_height: float | None = None) -> Frame:
@@ -77,9 +77,9 @@ class Frames:
         return frame
 
 
-def observation_frames(obs: Observation, config: TrackerConfig) -> Iterator[Frame]:
+def observation_frames(obs: Observation, settings: LikelihoodSettings) -> Iterator[Frame]:
     """The frames of a recorded observation, in order."""
-    frames = Frames(obs.intrinsics, obs.fps, config, camera_moves=obs.camera_motion is not None)
+    frames = Frames(obs.intrinsics, obs.fps, settings, camera_moves=obs.camera_motion is not None)
     for t, flows in enumerate(obs.flows):
         yield frames.next(flows, None if obs.camera_motion is None else obs.camera_motion[t],
                           None if obs.gravity is None else obs.gravity[t],

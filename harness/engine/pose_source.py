@@ -5,7 +5,10 @@ A pose source answers, each frame, for the tracks it made (``PoseSource``):
 - ``start(frame)``: the tracks of the first frame with flows;
 - ``predict(frame, tracks)``: move each track's pose hypotheses to this frame (its belief has moved already);
 - ``weigh(frame, tracks)``: weigh them by the frame's flows and set each track's pose estimate;
-- ``manage(tracks)``: after recognition, the tracks that go on;
+- ``reinject(frame, tracks)``: after recovery, the tracks with new ones added where an alternative of a track's
+  recent path (a turn, the twin, a depth scale) has more evidence than the track (particle tracks, every few
+  frames; none for a given pose);
+- ``manage(tracks)``: last, the tracks that go on;
 - ``known_pose(frame)``: the base pose it knows without tracking (a given pose), or None;
 - ``fixed``: whether recovery must keep the base pose (it is given).
 
@@ -23,6 +26,8 @@ import numpy as np
 
 from harness import geometry
 from harness.body.model import mirror_angles
+from harness.engine.config import (BeliefSettings, MotionSettings, ReinjectionSettings, SpawnSettings,
+                                   TracksSettings)
 from harness.engine.frame import Frame
 from harness.engine.logsum import logsumexp
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
@@ -60,11 +65,11 @@ class GivenPose:
 
     fixed = True
 
-    def __init__(self, scorer: Scorer, positions: np.ndarray, quats: np.ndarray):
+    def __init__(self, scorer: Scorer, belief: BeliefSettings, positions: np.ndarray, quats: np.ndarray):
         if len(positions) != len(quats):
             raise EngineError(f"a given pose needs as many positions as orientations, got {len(positions)} and "
                               f"{len(quats)}")
-        self.scorer = scorer
+        self.scorer, self.belief_settings = scorer, belief
         self.positions, self.quats = positions, quats
 
     def __len__(self) -> int:
@@ -76,7 +81,7 @@ class GivenPose:
         return self.positions[frame.index], self.quats[frame.index]
 
     def start(self, frame: Frame) -> list[Track]:
-        return [Track(0, "given", new_recognizer(self.scorer.model.db, self.scorer.config))]
+        return [Track(0, "given", new_recognizer(self.scorer.model.db, self.belief_settings))]
 
     def predict(self, frame: Frame, tracks: list[Track]) -> None:
         pass
@@ -94,20 +99,27 @@ class GivenPose:
 
 class ParticleTracks:
     """The engine's pose tracks, each a particle cloud with its own belief (``track``), sharing
-    ``config.particles`` particles: spawned at the first frame with flows, moved by their beliefs, weighed by
-    the flows under their beliefs, pruned and merged by evidence."""
+    ``tracks.particles`` particles: spawned at the first frame with flows, moved by their beliefs, weighed by
+    the flows under their beliefs, pruned and merged by evidence. Settings: the sections of its stages
+    (``harness.engine.config``); ``min_position_std``: the least position room a track's pose gives recovery
+    (``recovery.position_std``)."""
 
     fixed = False
 
-    def __init__(self, scorer: Scorer, rng: np.random.Generator):
+    def __init__(self, scorer: Scorer, rng: np.random.Generator, *, spawn: SpawnSettings, tracks: TracksSettings,
+                 motion: MotionSettings, reinjection: ReinjectionSettings, belief: BeliefSettings,
+                 min_position_std: float):
         self.scorer = scorer
         self.rng = rng
+        self.spawn_settings, self.track_settings, self.motion_settings = spawn, tracks, motion
+        self.reinjection_settings, self.belief_settings = reinjection, belief
+        self.min_position_std = min_position_std
         self._spawned = 0
         self._frames: dict[int, Frame] = {}      # the frames re-injection replays
-        self._alternatives = alternatives(scorer.config)
+        self._alternatives = alternatives(reinjection)
         self._screened: dict = {}                # re-injection's screened snapshots (``screen``)
         self._drawn_at: int | None = None        # the frame whose weighing ``start`` drew the tracks from
-        self._belief = new_recognizer(scorer.model.db, scorer.config)    # ``new_belief``'s original
+        self._belief = new_recognizer(scorer.model.db, belief)    # ``new_belief``'s original
 
     def new_belief(self) -> Recognizer:
         """A new track's belief (``track.new_recognizer``), copied: building one checks the whole database and
@@ -118,8 +130,8 @@ class ParticleTracks:
     def memory(self) -> int:
         """Snapshots each track keeps: the window re-injection replays, and the one before it (none without
         re-injection)."""
-        cfg = self.scorer.config
-        return cfg.reinject_window + 1 if cfg.reinject_every else 0
+        cfg = self.reinjection_settings
+        return cfg.window + 1 if cfg.every else 0
 
     def known_pose(self, frame: Frame) -> None:
         return None
@@ -127,8 +139,8 @@ class ParticleTracks:
     def share(self, n_tracks: int) -> int:
         """Particles per track when ``n_tracks`` share them: an equal share of ``particles`` (at least one), at
         most ``track_particles_max``."""
-        cfg = self.scorer.config
-        return min(max(1, cfg.particles // n_tracks), cfg.track_particles_max)
+        cfg = self.track_settings
+        return min(max(1, cfg.particles // n_tracks), cfg.particles_max)
 
     # --- the first frame ------------------------------------------------------------------------
 
@@ -136,7 +148,6 @@ class ParticleTracks:
         """A wide cloud over the coarse prior, weighed by the first frame's flows, and the tracks spawned from it:
         with ``class_tracks``, a set per primitive from that primitive's own weighing of the cloud, each believing
         only its primitive; else one set from the cloud weighed under the mixture of primitives."""
-        cfg = self.scorer.config
         wide, per_class, log_prior = self.first_cloud(frame)
         if not self.class_tracks:
             wide.reweight(logsumexp(per_class + log_prior[:, None], axis=0))
@@ -146,7 +157,7 @@ class ParticleTracks:
         # weighing, which its weighing under every primitive alike does not repeat.)
         self._drawn_at = frame.index
         C = len(per_class)
-        n_each = self.share(C * cfg.n_tracks)
+        n_each = self.share(C * self.spawn_settings.n_tracks)
         owns = [ParticleCloud(wide.positions, wide.quats, wide.log_weights.copy()) for _ in range(C)]
         reweight_many(owns, per_class)
         tracks = []
@@ -157,25 +168,24 @@ class ParticleTracks:
     @property
     def class_tracks(self) -> bool:
         """Whether tracks hypothesise one primitive each (not in streams, where the primitive changes)."""
-        cfg = self.scorer.config
-        return cfg.class_tracks and cfg.primitive_switch == 0
+        return self.spawn_settings.per_class and self.belief_settings.primitive_switch == 0
 
     def first_cloud(self, frame: Frame) -> tuple[ParticleCloud, np.ndarray, np.ndarray]:
         """``init_factor`` times the particles from the coarse prior, weighed coarse to fine: every particle
         under the prior as one moment-matched blob, then the best ``init_keep`` of them (equally weighted) under
         each primitive (``class_log_likelihoods``). Returns that cloud, the log-likelihoods ``(C, N)`` and the
         primitives' log prior ``(C,)``."""
-        cfg, model, rng = self.scorer.config, self.scorer.model, self.rng
-        n_wide = cfg.particles * cfg.init_factor
-        cameras = (camera_pitch(rng.uniform(*np.deg2rad(cfg.init_elevation), n_wide)) if frame.gravity is None
+        cfg, model, rng = self.spawn_settings, self.scorer.model, self.rng
+        n_wide = self.track_settings.particles * cfg.factor
+        cameras = (camera_pitch(rng.uniform(*np.deg2rad(cfg.elevation), n_wide)) if frame.gravity is None
                    else level_world(frame.gravity))
-        wide = initial_cloud(frame.intr, frame.flows, n_wide, rng, depth_range=cfg.init_distance,
+        wide = initial_cloud(frame.intr, frame.flows, n_wide, rng, depth_range=cfg.distance,
                              world_from_camera=cameras, body_extent=model.body_extent,
-                             band=cfg.init_depth_band)
+                             band=cfg.depth_band)
         prior = self._belief.posterior
         coarse = self.scorer.pose_log_likelihood(frame, wide.quats, wide.positions, model.dists.mixture(prior.ravel()),
-                                                 n_eff=cfg.n_eff_filter)
-        wide = wide.take(np.argsort(coarse)[::-1][:int(round(cfg.init_keep * n_wide))])
+                                                 n_eff=self.scorer.settings.n_eff_filter)
+        wide = wide.take(np.argsort(coarse)[::-1][:int(round(cfg.keep * n_wide))])
         return wide, self.class_log_likelihoods(frame, wide, prior), np.log(prior.sum(axis=1))
 
     def class_log_likelihoods(self, frame: Frame, cloud: ParticleCloud, prior: np.ndarray) -> np.ndarray:
@@ -188,7 +198,7 @@ class ParticleTracks:
         n = len(cloud)
         return self.scorer.pose_log_likelihood(frame, np.tile(cloud.quats, (C, 1)), np.tile(cloud.positions, (C, 1)),
                                                mixes, np.repeat(np.arange(C), n),
-                                               n_eff=self.scorer.config.n_eff_filter).reshape(C, n)
+                                               n_eff=self.scorer.settings.n_eff_filter).reshape(C, n)
 
     def spawn(self, wide: ParticleCloud, gravity: np.ndarray | None, *, primitive: int | None = None,
               n_each: int | None = None) -> list[Track]:
@@ -197,10 +207,10 @@ class ParticleTracks:
         A track starts from the cloud's own particles within 45 degrees of its orientation (their positions fit
         it); where they hold fewer than ``min_spawn_ess`` effective particles, from the lead's particles turned
         to it. With ``primitive``, the tracks believe only that primitive (``Recognizer.restrict``)."""
-        cfg, rng = self.scorer.config, self.rng
+        cfg, rng = self.spawn_settings, self.rng
         _, lead = wide.estimate()
-        spawn = [("lead", lead)] + [(f"turn{a:+g}", turned(lead[None], np.deg2rad(a))[0]) for a in cfg.track_turns]
-        if cfg.twin_track:
+        spawn = [("lead", lead)] + [(f"turn{a:+g}", turned(lead[None], np.deg2rad(a))[0]) for a in cfg.turns]
+        if cfg.twin:
             spawn.append(("twin", twin(lead[None], gravity)[0]))
         if n_each is None:
             n_each = self.share(len(spawn))
@@ -209,7 +219,7 @@ class ParticleTracks:
         for origin, centre in spawn:
             near = geometry.angle_between(wide.quats, centre[None]) <= np.deg2rad(45.0)
             weights = np.where(near, wide.weights, 0.0)
-            if weights.sum() > 0 and effective_sample_size(weights) >= cfg.min_spawn_ess:
+            if weights.sum() > 0 and effective_sample_size(weights) >= cfg.min_ess:
                 cloud = wide.take(systematic_resample(weights, rng, n_each))
             else:
                 lead_near = geometry.angle_between(wide.quats, lead[None]) <= np.deg2rad(45.0)
@@ -226,7 +236,7 @@ class ParticleTracks:
     # --- every frame ----------------------------------------------------------------------------
 
     def process_noise(self, gravity: np.ndarray | None) -> ProcessNoise:
-        cfg = self.scorer.config
+        cfg = self.motion_settings
         if gravity is None:
             return ProcessNoise(cfg.position_noise, cfg.rotation_noise)
         return ProcessNoise(cfg.position_noise, cfg.rotation_noise, cfg.tilt_noise, -gravity)
@@ -234,7 +244,7 @@ class ParticleTracks:
     def predict(self, frame: Frame, tracks: list[Track]) -> None:
         """Move every track's particles: the tracks recovery guides one by one (``Track.move``), the others in
         one bootstrap pass (``propose_many``), each at its belief's base velocity."""
-        cfg = self.scorer.config
+        cfg = self.motion_settings
         n_each = self.share(len(tracks))
         noise = self.process_noise(frame.gravity)
         dists = self.scorer.model.dists
@@ -257,13 +267,13 @@ class ParticleTracks:
     def log_likelihoods(self, frame: Frame, tracks: list[Track]) -> list[np.ndarray]:
         """Each track's particles' log-likelihoods ``(N_j,)`` under its own belief (``Track.pose_mixture``): all
         tracks and mixture terms in one kernel call."""
-        cfg = self.scorer.config
-        mixtures = [t.pose_mixture(cfg) for t in tracks]
+        mixtures = [t.pose_mixture(self.track_settings) for t in tracks]
         pose_index, state_index = mixture_pairs([len(t.cloud) for t in tracks], [len(w) for w, _ in mixtures])
         mixes = self.scorer.model.dists.mixtures(np.concatenate([rows for _, rows in mixtures]))
         pos = np.concatenate([t.cloud.positions for t in tracks])[pose_index]
         quat = np.concatenate([t.cloud.quats for t in tracks])[pose_index]
-        ll = self.scorer.pose_log_likelihood(frame, quat, pos, mixes, state_index, n_eff=cfg.n_eff_filter)
+        ll = self.scorer.pose_log_likelihood(frame, quat, pos, mixes, state_index,
+                                             n_eff=self.scorer.settings.n_eff_filter)
         out, at = [], 0
         for (log_w, _), track in zip(mixtures, tracks):
             n, k = len(track.cloud), len(log_w)
@@ -274,7 +284,7 @@ class ParticleTracks:
         return out
 
     def weigh(self, frame: Frame, tracks: list[Track]) -> None:
-        if self.scorer.config.reinject_every:
+        if self.reinjection_settings.every:
             self._frames[frame.index] = frame
             self._frames.pop(frame.index - self.memory, None)
         # The tracks per primitive ``start`` drew from this frame's weighing hold it already: weighed again, the
@@ -283,7 +293,7 @@ class ParticleTracks:
             reweight_many([t.cloud for t in tracks], self.log_likelihoods(frame, tracks))
         positions, quats, spreads = settled([t.cloud for t in tracks])
         for track, pos, quat, spread in zip(tracks, positions, quats, spreads):
-            track.settle(pos, quat, spread, self.scorer.config.refine_position_std)
+            track.settle(pos, quat, spread, self.min_position_std)
 
     def reinject(self, frame: Frame, tracks: list[Track]) -> list[Track]:
         """Every ``reinject_every`` frames, alternatives to the paths of the best track of each of the
@@ -302,13 +312,13 @@ class ParticleTracks:
         parent; they are screened first (``screen``: each frame's flows under the parent's belief moment-matched,
         one hypothesis per alternative and frame) and only the best, if it screens above the parent's own path,
         is replayed."""
-        cfg = self.scorer.config
-        if not cfg.reinject_every or not self._alternatives or (frame.index + 1) % cfg.reinject_every:
+        cfg = self.reinjection_settings
+        if not cfg.every or not self._alternatives or (frame.index + 1) % cfg.every:
             return tracks
         best: dict = {}
         for t in sorted(tracks, key=lambda t: -t.log_evidence):
             best.setdefault(t.primitive, t)
-        parents = list(best.values())[:cfg.reinject_classes]
+        parents = list(best.values())[:cfg.classes]
         own = Alternative("own")
         screened, self._screened = screen(self.scorer, self._frames, [p.history for p in parents],
                                           [own] + self._alternatives, self._screened)
@@ -319,7 +329,7 @@ class ParticleTracks:
         out = list(tracks)
         for (parent, alt), (score, rec, history) in zip(jobs, replayed):
             score -= penalty
-            if score <= parent.log_evidence + cfg.reinject_margin:
+            if score <= parent.log_evidence + cfg.margin:
                 continue
             pos, quat = alt.apply(parent.cloud.positions, parent.cloud.quats, frame.gravity)
             cloud = ParticleCloud(pos, quat, parent.cloud.log_weights.copy())
@@ -337,8 +347,8 @@ class ParticleTracks:
         return out
 
     def manage(self, tracks: list[Track]) -> list[Track]:
-        cfg = self.scorer.config
-        return prune_and_merge(tracks, cfg.track_prune_nats, cfg.track_merge_m, cfg.track_merge_deg)
+        cfg = self.track_settings
+        return prune_and_merge(tracks, cfg.prune_nats, cfg.merge_m, cfg.merge_deg)
 
 
 def screen(scorer: Scorer, frames: dict[int, Frame], histories: list, alternatives: list[Alternative],
@@ -350,7 +360,6 @@ def screen(scorer: Scorer, frames: dict[int, Frame], histories: list, alternativ
     ``cache``: the rows ``(A,)`` of snapshots already screened against the same ``alternatives`` (by
     ``id``, with the snapshot kept alive beside its row); the windows of successive calls overlap, so each
     snapshot is scored once. Returns the sums and the cache of this call's snapshots."""
-    cfg = scorer.config
     cache = cache or {}
     rows, owners, known = [], [], {}
     for h in histories:
@@ -374,9 +383,14 @@ def screen(scorer: Scorer, frames: dict[int, Frame], histories: list, alternativ
         pos = np.array([owners[i].pose[0] for i in members])
         quat = np.array([owners[i].pose[1] for i in members])
         moved = [alt.apply(pos, quat, frame.gravity) for alt in alternatives]     # member-major below
-        ll = scorer.pose_log_likelihood(frame, np.stack([q for _, q in moved], axis=1).reshape(-1, 4),
-                                        np.stack([p for p, _ in moved], axis=1).reshape(-1, 3), blobs,
-                                        np.repeat(members, A), n_eff=cfg.n_eff_recognition).reshape(len(members), A)
+        ll = scorer.pose_log_likelihood(
+            frame,
+            np.stack([q for _, q in moved], axis=1).reshape(-1, 4),
+            np.stack([p for p, _ in moved], axis=1).reshape(-1, 3),
+            blobs,
+            np.repeat(members, A),
+            n_eff=scorer.settings.n_eff_recognition,
+        ).reshape(len(members), A)
         for i, row in zip(members, ll):
             scored[id(owners[i])][1][:] = row
     known |= scored

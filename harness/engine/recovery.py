@@ -24,6 +24,7 @@ from harness import geometry
 from harness.body.model import BodyModel
 from harness.body.surface import SurfacePoints
 from harness.body.tree import body_frames_into, frame_work, points_and_jacobians_into
+from harness.engine.config import RecoverySettings
 from harness.engine.features import ANGLE_RATES, ANGLES
 from harness.engine.likelihood import FlowModel, responsibilities
 from harness.engine.transform import MIN_DEPTH, JointGaussians, state_point_distributions, to_image
@@ -280,17 +281,19 @@ def mean_angles(model, best: np.ndarray, state_beliefs: np.ndarray) -> np.ndarra
 
 
 def recover(scorer: "Scorer", frame: "Frame", state_belief: np.ndarray, position: np.ndarray, rot: np.ndarray,
-            position_std: np.ndarray, *, refine: bool = True, fix_pose: bool = False) -> Recovery:
+            position_std: np.ndarray, *, settings: RecoverySettings, refine: bool = True,
+            fix_pose: bool = False) -> Recovery:
     """Angles of a recognised primitive and a refined pose, by EM against the frame's flows.
 
     ``state_belief`` ``(S,)`` over all database states (zero outside the recognised primitive). The prior is
     the belief's moment-matched Gaussian over the angles; the pose prior is ``position`` ``(3,)``,
-    ``rot`` ``(3, 3)`` with ``position_std`` ``(3,)`` and the setting ``refine_rotation_std``. The E-step
+    ``rot`` ``(3, 3)`` with ``position_std`` ``(3,)`` and the setting ``rotation_std`` (``settings``, the
+    engine's recovery section, also gives the iterations). The E-step
     assigns flows to model points softly, first under the state belief, then at the current estimate (whose
     points only spread over their surface patch), with the likelihood's visibility and weights; the M-step is
     ``refine_pose``. Without flows, or with ``refine`` false, the prior mean at the given pose.
     """
-    model, config = scorer.model, scorer.config
+    model = scorer.model
     idx = np.flatnonzero(state_belief > 0)
     gamma = state_belief[idx] / state_belief[idx].sum()
     angle_means = model.db_means[idx, ANGLES]
@@ -302,9 +305,9 @@ def recover(scorer: "Scorer", frame: "Frame", state_belief: np.ndarray, position
     var = gamma @ (covars[:, ANGLES] + (angle_means - theta0) ** 2)
     rates = gamma @ rate_means
     rate_var = gamma @ (covars[:, ANGLE_RATES] + (rate_means - rates) ** 2)
-    prior = Prior(theta0, np.sqrt(var), position, position_std, rot, config.refine_rotation_std)
+    prior = Prior(theta0, np.sqrt(var), position, position_std, rot, settings.rotation_std)
     mix = model.dists.mixture(state_belief)
-    for it in range(config.em_iterations):
+    for it in range(settings.em_iterations):
         if it:
             mix = state_point_distributions(model.body, JointGaussians.at(current.angles, rates, rate_var,
                                                                           mix.base_linear[0], mix.base_angular[0]),
@@ -312,8 +315,8 @@ def recover(scorer: "Scorer", frame: "Frame", state_belief: np.ndarray, position
         img = scorer.image(frame, current.rotation[None], current.position[None], mix)
         resp = scorer.responsibilities(frame, img)
         current = refine_pose(model.body, model.points, frame.intr, frame.flows, resp, prior,
-                              noise_px=config.noise_px, spread=model.spread, iterations=config.refine_iterations,
-                              start=current, fix_pose=fix_pose)
+                              noise_px=scorer.settings.noise_px, spread=model.spread,
+                              iterations=settings.refine_iterations, start=current, fix_pose=fix_pose)
     return current
 
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness import geometry
-from harness.engine.config import TrackerConfig
+from harness.engine.config import BeliefSettings, LikelihoodSettings
 from harness.engine.frame import Frame, observation_frames
 from harness.engine.likelihood import (FlowModel, flow_log_likelihoods, responsibilities, tempered,
                                        velocity_log_likelihoods)
@@ -28,20 +28,20 @@ from harness.observation import Observation
 
 @dataclass(frozen=True)
 class Scorer:
-    """The engine's model and settings, asked per frame (see the module docstring)."""
+    """The engine's model and its likelihood settings, asked per frame (see the module docstring)."""
 
     model: EngineModel
-    config: TrackerConfig
+    settings: LikelihoodSettings
 
     @property
     def occlusion(self) -> tuple[float, float] | None:
         """``to_image``'s self-occlusion parameters (footprint radius, depth gap; metres), or None."""
-        if not self.config.self_occlusion:
+        if not self.settings.self_occlusion:
             return None
-        return 2.0 * self.model.spread * self.config.occlusion_radius, self.config.occlusion_depth
+        return 2.0 * self.model.spread * self.settings.occlusion_radius, self.settings.occlusion_depth
 
     def flow_model(self, frame: Frame) -> FlowModel:
-        cfg = self.config
+        cfg = self.settings
         return FlowModel(cfg.noise_px, frame.fps, frame.intr.width, frame.intr.height, cfg.outlier_prob,
                          weight_iterations=cfg.weight_iterations, smoothing=cfg.weight_smoothing)
 
@@ -59,7 +59,7 @@ class Scorer:
         """``(H, M)`` what recognition scores of each flow: its velocity given its position
         (``recognise_velocities``) at a tracked pose; the flow itself (``per_flow``) otherwise, and at a given
         pose, where the positions carry no pose error."""
-        if pose_given or not self.config.recognise_velocities:
+        if pose_given or not self.settings.recognise_velocities:
             return self.per_flow(frame, img)
         return velocity_log_likelihoods(frame.flows, img, self.flow_model(frame), open_mask=frame.open)
 
@@ -96,7 +96,7 @@ class Scorer:
         rot = geometry.to_matrix(np.asarray(quats, dtype=float).reshape(-1, 4))
         img = self.image(frame, rot[owner], np.asarray(positions, dtype=float).reshape(-1, 3)[owner],
                          self.model.dists, np.concatenate(actives))
-        ll = tempered(self.recognition_per_flow(frame, img, pose_given), self.config.n_eff_recognition)
+        ll = tempered(self.recognition_per_flow(frame, img, pose_given), self.settings.n_eff_recognition)
         out = np.empty(len(recognizers))
         at = 0
         for j, (rec, active) in enumerate(zip(recognizers, actives)):
@@ -111,7 +111,7 @@ class Scorer:
         """``(N,)`` the floor term of the camera prior for base poses (0 without a known camera height)."""
         if frame.camera_height is None:
             return np.zeros(len(positions))
-        return floor_log_prior(points, quats, positions, -frame.gravity, frame.camera_height, self.config)
+        return floor_log_prior(points, quats, positions, -frame.gravity, frame.camera_height, self.settings)
 
 
 def _hypothesis_points(dists: PointDistributions, state_index: np.ndarray | None, n: int) -> np.ndarray:
@@ -123,7 +123,7 @@ def _hypothesis_points(dists: PointDistributions, state_index: np.ndarray | None
 
 
 def floor_log_prior(points: np.ndarray, quats: np.ndarray, positions: np.ndarray, up: np.ndarray,
-                    camera_height: float, config: TrackerConfig) -> np.ndarray:
+                    camera_height: float, settings: LikelihoodSettings) -> np.ndarray:
     """``(N,)`` log prior of base poses from a known floor: the body's lowest point (of its model points'
     means ``points`` ``(N, P, 3)``, base frame) is on the floor, or in flight above it.
 
@@ -135,35 +135,34 @@ def floor_log_prior(points: np.ndarray, quats: np.ndarray, positions: np.ndarray
     # for the first frame's 3750 hypotheses against 5 ms in two steps.
     up_base = np.einsum("i,nij->nj", up, geometry.to_matrix(quats))
     h = camera_height + np.einsum("npj,nj->np", points, up_base).min(axis=1) + positions @ up
-    cfg = config
+    cfg = settings
     log_ground = np.log1p(-cfg.floor_flight) - 0.5 * (h / cfg.floor_std) ** 2 - np.log(np.sqrt(2 * np.pi) * cfg.floor_std)
     log_flight = np.where((h >= 0) & (h <= cfg.floor_flight_height), np.log(cfg.floor_flight / cfg.floor_flight_height),
                           -np.inf)
     return np.logaddexp(log_ground, log_flight)
 
 
-def path_recognition(model: EngineModel, config: TrackerConfig, obs: Observation, positions: np.ndarray,
+def path_recognition(scorer: Scorer, belief: BeliefSettings, obs: Observation, positions: np.ndarray,
                      quats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The recognition of a track that followed exactly a given base pose path ``(T, 3)``, ``(T, 4)`` (camera
     frame): its per-frame evidence ``log p(y_t | y_<t, path)`` ``(T,)`` and class posteriors ``(T, C)`` (before
     the first flows, the uniform prior)."""
-    rec = Recognizer(model.db, config.start_spread, config.prune)
+    rec = Recognizer(scorer.model.db, belief.start_spread, belief.prune)
     evidence = np.zeros(len(obs))
-    posteriors = np.empty((len(obs), model.n_classes))
-    for t, gained in _along_path(model, config, obs, positions, quats, [rec]):
+    posteriors = np.empty((len(obs), scorer.model.n_classes))
+    for t, gained in _along_path(scorer, obs, positions, quats, [rec]):
         evidence[t] = gained[0]
         posteriors[t] = rec.class_posterior
     return evidence, posteriors
 
 
-def _along_path(model: EngineModel, config: TrackerConfig, obs: Observation, positions: np.ndarray,
-                quats: np.ndarray, recognizers: list[Recognizer]):
+def _along_path(scorer: Scorer, obs: Observation, positions: np.ndarray, quats: np.ndarray,
+                recognizers: list[Recognizer]):
     """Yields ``(t, gained)`` for every frame: the recognizers' normalisers ``(J,)`` after folding frame ``t`` in
     at the path's pose (zeros before the first frame with flows, where a track has not started)."""
-    scorer = Scorer(model, config)
     J = len(recognizers)
     started = False
-    for frame in observation_frames(obs, config):
+    for frame in observation_frames(obs, scorer.settings):
         t = frame.index
         if not (started or frame.has_flows):
             yield t, np.zeros(J)
@@ -175,17 +174,18 @@ def _along_path(model: EngineModel, config: TrackerConfig, obs: Observation, pos
                                   np.repeat(quats[t][None], J, axis=0))
 
 
-def path_evidence(model: EngineModel, config: TrackerConfig, obs: Observation, positions: np.ndarray,
+def path_evidence(scorer: Scorer, belief: BeliefSettings, obs: Observation, positions: np.ndarray,
                   quats: np.ndarray) -> np.ndarray:
     """``(T,)`` per-frame evidence ``log p(y_t | y_<t, path)`` of a given base pose path (``path_recognition``):
     what a track that followed exactly this path would accumulate."""
-    return path_recognition(model, config, obs, positions, quats)[0]
+    return path_recognition(scorer, belief, obs, positions, quats)[0]
 
 
-def path_class_evidence(model: EngineModel, config: TrackerConfig, obs: Observation, positions: np.ndarray,
+def path_class_evidence(scorer: Scorer, belief: BeliefSettings, obs: Observation, positions: np.ndarray,
                         quats: np.ndarray) -> np.ndarray:
     """``(C,)`` the evidence each primitive gathers along a given base pose path ``(T, 3)``, ``(T, 4)``: what a
     track that believed only that primitive (``Recognizer.restrict``, as the engine's tracks per primitive do)
     and followed exactly this path would have at the end, comparable with a track's ``log_evidence``."""
-    recs = [Recognizer(model.db, config.start_spread, config.prune).restrict([c]) for c in range(model.n_classes)]
-    return sum(gained for _, gained in _along_path(model, config, obs, positions, quats, recs))
+    recs = [Recognizer(scorer.model.db, belief.start_spread, belief.prune).restrict([c])
+            for c in range(scorer.model.n_classes)]
+    return sum(gained for _, gained in _along_path(scorer, obs, positions, quats, recs))

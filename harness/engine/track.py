@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness import geometry
-from harness.engine.config import TrackerConfig
+from harness.engine.config import BeliefSettings, MotionSettings, ReinjectionSettings, TracksSettings
 from harness.engine.database import MotionDatabase
 from harness.engine.frame import Frame
 from harness.engine.particle_filter import ParticleCloud, ProcessNoise, level_world, motion_mean, propose
@@ -78,20 +78,20 @@ class Alternative:
         return positions * self.depth, q
 
 
-def alternatives(config: TrackerConfig) -> list[Alternative]:
-    """Re-injection's alternatives to a track's path, from the settings (``reinject_*``)."""
-    out = [Alternative(f"turn{a:+g}", turn=np.deg2rad(a)) for a in config.reinject_turns]
-    if config.reinject_twin:
+def alternatives(settings: ReinjectionSettings) -> list[Alternative]:
+    """Re-injection's alternatives to a track's path: its turns, the twin, its depth scales."""
+    out = [Alternative(f"turn{a:+g}", turn=np.deg2rad(a)) for a in settings.turns]
+    if settings.twin:
         out.append(Alternative("twin", twin=True))
-    out += [Alternative(f"depth{d:g}", depth=d) for d in config.reinject_depths]
+    out += [Alternative(f"depth{d:g}", depth=d) for d in settings.depths]
     return out
 
 
-def new_recognizer(db: MotionDatabase, config: TrackerConfig) -> Recognizer:
+def new_recognizer(db: MotionDatabase, belief: BeliefSettings) -> Recognizer:
     """A track's belief over (primitive, state): the isolated recursion, or the switching one for streams."""
-    if config.primitive_switch > 0:
-        return SwitchingRecognizer(db, config.primitive_switch, config.start_spread, config.stream_prune)
-    return Recognizer(db, config.start_spread, config.prune)
+    if belief.primitive_switch > 0:
+        return SwitchingRecognizer(db, belief.primitive_switch, belief.start_spread, belief.stream_prune)
+    return Recognizer(db, belief.start_spread, belief.prune)
 
 
 @dataclass(frozen=True)
@@ -147,7 +147,7 @@ class Track:
         its own frame (``features.VELOCITY_SCHEME``), so the belief moves before it predicts the base."""
         self.recognizer.predict()
 
-    def pose_mixture(self, config: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
+    def pose_mixture(self, settings: TracksSettings) -> tuple[np.ndarray, np.ndarray]:
         """What the track's particles are weighed under: log weights ``(k,)`` and the ``k`` terms' state
         weights ``(k, C * K)``, each term to be moment-matched over its states (``PointDistributions.mixtures``).
 
@@ -155,9 +155,9 @@ class Track:
         primitives (streams): with ``weigh_by_belief``, the belief's most probable primitives
         (``class_mixtures``); else one term in which every primitive counts alike, each with its own belief over
         its states (``every_primitive``), so that a wrong class belief cannot steer the pose."""
-        if self.primitive is None and not config.weigh_by_belief:
+        if self.primitive is None and not settings.weigh_by_belief:
             return np.zeros(1), self.every_primitive()
-        return self.class_mixtures(config.weigh_classes, config.weigh_class_mass)
+        return self.class_mixtures(settings.weigh_classes, settings.weigh_class_mass)
 
     def every_primitive(self) -> np.ndarray:
         """``(1, C * K)``: each primitive's belief over its active states (``state_posterior``, rows summing to
@@ -214,12 +214,12 @@ class Track:
 
     # --- the pose -------------------------------------------------------------------------------
 
-    def guided(self, config: TrackerConfig) -> bool:
+    def guided(self, motion: MotionSettings) -> bool:
         """Whether the next proposal is guided by this frame's recovery (it refined the track's pose)."""
-        return self.recovery is not None and self.recovery.refined and config.guide_fraction > 0
+        return self.recovery is not None and self.recovery.refined and motion.guide_fraction > 0
 
     def move(self, frame: Frame, dists: PointDistributions, n: int, noise: ProcessNoise,
-             rng: np.random.Generator, config: TrackerConfig, *, recovered_quat: np.ndarray) -> None:
+             rng: np.random.Generator, motion: MotionSettings, *, recovered_quat: np.ndarray) -> None:
         """Propose ``n`` particles for this frame: the motion model at the belief's base velocity, mixed with
         proposals around last frame's recovered pose when recovery refined it (``particle_filter.propose``;
         ``recovered_quat``: its rotation as a quaternion, ``geometry.from_matrix``, which the caller finds for
@@ -227,12 +227,12 @@ class Track:
         v, w = self.base_velocity(dists)
         guide = guide_std = None
         rec = self.recovery
-        if self.guided(config):
+        if self.guided(motion):
             g_pos, g_quat = motion_mean(rec.position[None], recovered_quat[None], v, w, frame.dt, frame.camera_motion)
             guide = (g_pos[0], g_quat[0])
-            guide_std = (0.5 * self.pose_std, config.guide_rotation_std)
+            guide_std = (0.5 * self.pose_std, motion.guide_rotation_std)
         self.cloud = propose(self.cloud, n, noise, rng, base_linear=v, base_angular=w, dt=frame.dt,
-                             camera_motion=frame.camera_motion, guide=guide, guide_fraction=config.guide_fraction,
+                             camera_motion=frame.camera_motion, guide=guide, guide_fraction=motion.guide_fraction,
                              guide_std=guide_std)
 
     def settle(self, position: np.ndarray, quat: np.ndarray, spread: np.ndarray, min_std: float) -> None:

@@ -10,9 +10,14 @@ Per frame (a ``Frame``: the flows and everything else the camera gave), in named
    call); the forward recursion folds them in, and its normaliser is added to the track's evidence;
 4. ``recover``: each track's angles from its recognised primitive's state belief, refined with its pose
    (EM and Gauss-Newton) for the tracks with the most evidence; a refined pose guides the next proposal;
-5. ``manage``: the pose source keeps the tracks worth keeping (particle tracks: drops those far behind the best
+5. ``reinject``: every few frames the pose source scores alternatives of the leading primitives' recent paths
+   (turns, the twin, depth scales; particle tracks only) and adds one as a new track where its replayed
+   evidence beats its parent's;
+6. ``manage``: the pose source keeps the tracks worth keeping (particle tracks: drops those far behind the best
    in evidence, merges those that met);
-6. the frame is recorded (``records``): the estimate is built from the records at the end.
+7. the frame is recorded (``records``): the estimate is built from the records at the end.
+
+Each stage receives its own settings section (``config``); the tracker holds them all.
 
 The first frame with flows starts the tracks. The pose source is the engine's particle tracks, or a given pose
 (the ground-truth-pose baseline; ``pose_source``). The engine reads only the observation (flows and
@@ -73,9 +78,9 @@ class Tracker:
     def __init__(self, db: MotionDatabase, body: BodyModel, config: TrackerConfig = TrackerConfig(),
                  rng: np.random.Generator | None = None, model: EngineModel | None = None):
         self.config = config
-        self.model = model if model is not None else EngineModel.build(db, body, config.model_points,
-                                                                       config.model_seed)
-        self.scorer = Scorer(self.model, config)
+        self.model = model if model is not None else EngineModel.build(db, body, config.model.points,
+                                                                       config.model.seed)
+        self.scorer = Scorer(self.model, config.likelihood)
         self.rng = rng if rng is not None else np.random.default_rng(0)
 
     # --- one sequence ---------------------------------------------------------------------------
@@ -88,7 +93,7 @@ class Tracker:
         obs.validate()
         if base_pose is not None and (len(base_pose[0]) != len(obs) or len(base_pose[1]) != len(obs)):
             raise EngineError(f"base_pose must have one pose per frame ({len(obs)})")
-        source = None if base_pose is None else GivenPose(self.scorer, *base_pose)
+        source = None if base_pose is None else GivenPose(self.scorer, self.config.belief, *base_pose)
         self.reset(obs.intrinsics, obs.fps, rng, camera_moves=obs.camera_motion is not None, source=source)
         for t, flows in enumerate(obs.flows):
             self.step(flows, None if obs.camera_motion is None else obs.camera_motion[t],
@@ -103,14 +108,20 @@ class Tracker:
         """Start a sequence seen through ``intr`` at ``fps``; ``camera_moves``: the camera is not static (its
         image remembers no region of past flows); ``source``: where the base poses come from (default: the
         engine's particle tracks, with ``rng``, default the tracker's generator)."""
-        self._frames = Frames(intr, fps, self.config, camera_moves)
-        self.source = source if source is not None else ParticleTracks(self.scorer, rng if rng is not None
-                                                                       else self.rng)
+        self._frames = Frames(intr, fps, self.config.likelihood, camera_moves)
+        self.source = source if source is not None else self.particle_tracks(rng if rng is not None else self.rng)
         self.tracks: list[Track] = []
         self.records: list[FrameRecord] = []
         self._timing = dict.fromkeys(STAGES, 0.0)
         self._inputs: list[tuple] = []           # every frame's input, for the offline backward pass
         self._sequence = (intr, fps, camera_moves)
+
+    def particle_tracks(self, rng: np.random.Generator, kind: type = ParticleTracks, **kw) -> ParticleTracks:
+        """The engine's pose source (``kind``: ``ParticleTracks`` or a subclass, with its own ``kw``), handed the
+        sections of its stages."""
+        cfg = self.config
+        return kind(self.scorer, rng, spawn=cfg.spawn, tracks=cfg.tracks, motion=cfg.motion,
+                    reinjection=cfg.reinjection, belief=cfg.belief, min_position_std=cfg.recovery.position_std, **kw)
 
     def step(self, flows: np.ndarray, camera_motion: np.ndarray | None = None, gravity: np.ndarray | None = None,
              camera_height: float | None = None) -> None:
@@ -158,14 +169,15 @@ class Tracker:
             track.remember(frame.index, pose)
 
     def _recover(self, frame: Frame) -> None:
-        """Recovery for the ``recover_tracks`` tracks with the most evidence; the others keep their belief's
+        """Recovery for the ``recovery.tracks`` tracks with the most evidence; the others keep their belief's
         mean angles at their filter estimate this frame (and propose without a guide next frame)."""
+        settings = self.config.recovery
         ranked = sorted(self.tracks, key=lambda t: -t.log_evidence)
-        refined, rest = ranked[:self.config.recover_tracks], ranked[self.config.recover_tracks:]
+        refined, rest = ranked[:settings.tracks], ranked[settings.tracks:]
         for track in refined:
             pos, quat = track.pose
             track.recovered(recover(self.scorer, frame, track.best_state_belief(), pos, geometry.to_matrix(quat),
-                                    np.maximum(track.pose_std, 1e-6), fix_pose=self.source.fixed))
+                                    np.maximum(track.pose_std, 1e-6), settings=settings, fix_pose=self.source.fixed))
         if rest:
             # The others' mean angles in one product: with dozens of tracks early on, a call each cost more.
             best, states = zip(*(t.best_states() for t in rest))
@@ -176,15 +188,15 @@ class Tracker:
 
     def result(self) -> Estimate:
         """The sequence's causal estimate, with its offline (hindsight) estimate as ``offline``."""
-        n = len(self.records)
+        n, belief, settings = len(self.records), self.config.belief, self.config.offline
         causal = causal_estimate(self.records, self.model.db.classes_.copy(),
                                  {k: 1e3 * v / max(n, 1) for k, v in self._timing.items()},
-                                 temperature=self.config.posterior_temperature, floor=self.config.posterior_floor)
-        stream = self.config.primitive_switch > 0
-        if self.config.backward_pass and not stream and not self._sequence[2] and not self.source.fixed:
+                                 temperature=belief.posterior_temperature, floor=belief.posterior_floor)
+        stream = belief.primitive_switch > 0
+        if settings.backward_pass and not stream and not self._sequence[2] and not self.source.fixed:
             offline = self._backward_pass()
         else:
-            offline = offline_estimate(self.records, causal, self.config.smoothing_frames, stream=stream)
+            offline = offline_estimate(self.records, causal, settings.smoothing_frames, stream=stream)
         return replace(causal, offline=offline)
 
     def _backward_pass(self) -> Estimate:
@@ -192,15 +204,17 @@ class Tracker:
         from the poses this pass ended with, in forward time."""
         intr, fps, _ = self._sequence
         model = reversed_model(self.model)
-        back = Tracker(model.db, model.body, replace(self.config, backward_pass=False), model=model)
-        source = SettledStarts(back.scorer, self.source.rng, settled_starts(self.tracks, model.n_classes,
-                                                                         self.config.backward_live_only))
+        settings = self.config.offline
+        back = Tracker(model.db, model.body, replace(self.config, offline=replace(settings, backward_pass=False)),
+                       model=model)
+        source = back.particle_tracks(self.source.rng, SettledStarts,
+                                      starts=settled_starts(self.tracks, model.n_classes, settings.backward_live_only))
         back.reset(intr, fps, source=source)
         flows = reversed_flows([f for f, _, _, _ in self._inputs])
         for s, f in enumerate(flows):
             _, _, gravity, height = self._inputs[len(flows) - 1 - s]
             back.step(f, None, gravity, height)
         offline = in_forward_time(back.result().offline)
-        if not self.config.offline_both_passes:
+        if not settings.both_passes:
             return offline
-        return both_passes(offline, self.records[-1], back.records[-1], self.config)
+        return both_passes(offline, self.records[-1], back.records[-1], self.config.belief)
