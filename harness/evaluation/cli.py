@@ -39,7 +39,8 @@ def _evaluate_args(p: argparse.ArgumentParser) -> None:
 
 
 def _load(path: str, mocap_dir: str | None):
-    from harness.evaluation.scenario import load_scenario, resolve_capture
+    from harness.evaluation.loading import load_scenario
+    from harness.evaluation.scenario_captures import resolve_capture
 
     return resolve_capture(load_scenario(path), mocap_dir, where=path)
 

@@ -55,18 +55,19 @@ def run_frames(config) -> int | None:
 def run_bytes(config) -> dict[str, int]:
     """The estimated peak memory of one run of a condition, by stage (bytes)."""
     eng, cam, obs = config.engine, config.camera, config.observation
+    cell = eng.likelihood.open_cell_px
     frames = run_frames(config) or 0
     markers = config.markers.count
     flows_per_frame = markers * (1.0 + obs.outliers)
     n_classes = len(config.database.classes or ()) or 10
-    hypotheses = eng.particles * max(eng.init_factor, eng.weigh_classes)
+    hypotheses = eng.tracks.particles * max(eng.spawn.factor, eng.tracks.weigh_classes)
     states = config.database.states * (2 if config.database.mirrored else 1)    # a chain per side
     out = {
         "process": PROCESS_BYTES,
-        "engine": HYPOTHESIS_POINT_BYTES * hypotheses * eng.model_points + 8 * hypotheses * int(flows_per_frame),
-        "database": STATE_POINT_BYTES * n_classes * states * eng.model_points,
+        "engine": HYPOTHESIS_POINT_BYTES * hypotheses * eng.model.points + 8 * hypotheses * int(flows_per_frame),
+        "database": STATE_POINT_BYTES * n_classes * states * eng.model.points,
         "scene": MARKER_FRAME_BYTES * frames * markers + int(FLOW_BYTES * frames * flows_per_frame),
-        "open_region": 24 * math.ceil(cam.width / eng.open_cell_px) * math.ceil(cam.height / eng.open_cell_px),
+        "open_region": 24 * math.ceil(cam.width / cell) * math.ceil(cam.height / cell),
         "rendered": RENDER_PIXEL_BYTES * cam.width * cam.height if obs.mode == "rendered" else 0,
     }
     if config.database.source == "procedural":
@@ -85,8 +86,13 @@ def check_run(config) -> None:
     total = sum(parts.values())
     if total > MAX_RUN_BYTES:
         stage = max((k for k in parts if k != "process"), key=parts.get)
-        key = {"engine": "engine.particles", "database": "database.states", "scene": "markers.count",
-               "open_region": "engine.open_cell_px", "rendered": "camera.width", "training": "database.train_demos"
-               }[stage]
+        key = {
+            "engine": "engine.tracks.particles",
+            "database": "database.states",
+            "scene": "markers.count",
+            "open_region": "engine.likelihood.open_cell_px",
+            "rendered": "camera.width",
+            "training": "database.train_demos",
+        }[stage]
         raise LimitError(key, f"a run would take about {total / 2**30:.1f} GB ({stage} {parts[stage] / 2**30:.1f} "
                               f"GB), more than {MAX_RUN_BYTES / 2**30:g} GB")

@@ -298,7 +298,7 @@ def _no_database(inputs: RunInputs, engine: EngineRuns) -> Estimate:
     tracker = inputs.tracker()
     truth = inputs.truth
     angles = fit_without_database(inputs.body, tracker.model.points, inputs.obs.intrinsics, inputs.obs.flows,
-                                  truth.base_pos_cam, truth.base_quat_cam, noise_px=tracker.config.noise_px,
+                                  truth.base_pos_cam, truth.base_quat_cam, noise_px=tracker.config.likelihood.noise_px,
                                   spread=tracker.model.spread)
     qpos = metrics.camera_qpos(inputs.body, truth.base_pos_cam, truth.base_quat_cam, angles)
     return Estimate(np.asarray(inputs.classes), qpos=qpos)
@@ -307,8 +307,9 @@ def _no_database(inputs: RunInputs, engine: EngineRuns) -> Estimate:
 @method("joint_space", recognises=True, recovers=False)
 def _joint_space(inputs: RunInputs, engine: EngineRuns) -> Estimate:
     features, measured = motion_features(inputs.motion), measured_features(inputs.motion)
-    switch = inputs.engine.primitive_switch
-    post = (recognize_stream_features(inputs.db, features, switch, inputs.engine.start_spread, measured=measured)
+    switch = inputs.engine.belief.primitive_switch
+    post = (recognize_stream_features(inputs.db, features, switch, inputs.engine.belief.start_spread,
+                                      measured=measured)
             if switch > 0 else recognize_features(inputs.db, features, measured=measured))
     return Estimate(np.asarray(inputs.classes), class_posterior=post)
 

@@ -46,7 +46,8 @@ def reproduce_command(args: argparse.Namespace) -> int:
     from harness.body import BodyModel
     from harness.engine.database import MotionDatabase
     from harness.engine.reproduction import class_mean, recovered_world, reproduce, state_path
-    from harness.engine.tracker import Tracker, TrackerConfig
+    from harness.engine.config import TrackerConfig
+    from harness.engine.tracker import Tracker
     from harness.evaluation.reproduction_metrics import dtw_angle_rms_deg, dtw_mpjpe_mm
     from harness.geometry import heading
     from harness.motion.motion import Motion
@@ -65,7 +66,7 @@ def reproduce_command(args: argparse.Namespace) -> int:
         check_output_file(args.video, "--video")
     if not 0 <= args.seed < 2**63:
         raise ReproduceError(f"--seed must be in [0, 2**63), got {args.seed}")
-    config = TrackerConfig(particles=args.particles)
+    config = TrackerConfig.from_dict({"tracks": {"particles": args.particles}})
     obs = Observation.load(args.observation)
     inspect_npz(args.database, EngineError, "database", MAX_DATABASE_BYTES)
     db = MotionDatabase.load(args.database)

@@ -48,7 +48,8 @@ def _args(p: argparse.ArgumentParser) -> None:
 def find_run(results_dir: Path, run_key: str):
     """The stored scenario of ``results_dir`` and the ``RunSpec`` of ``run_key`` in its plan."""
     from harness.evaluation.runner import plan
-    from harness.evaluation.scenario import ScenarioError, parse_scenario, scenario_hash
+    from harness.evaluation.loading import parse_scenario
+    from harness.evaluation.scenario import ScenarioError, scenario_hash
     from harness.io import read_input_bytes
 
     path = results_dir / "scenario.json"

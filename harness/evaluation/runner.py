@@ -32,7 +32,8 @@ from harness.errors import HarnessError
 from harness.evaluation.journal import Journal
 from harness.evaluation.journal import read as read_journal
 from harness.evaluation.results_dir import check as check_results_dir
-from harness.evaluation.scenario import MAX_RUNS, Scenario, conditions, scenario_hash
+from harness.evaluation.scenario import MAX_RUNS, Scenario, scenario_hash
+from harness.evaluation.sweep import conditions
 from harness.io import write_text_atomic
 from harness.version import code_version
 
@@ -116,7 +117,7 @@ def motions_under_test(config: Scenario) -> list[tuple[str, int]]:
     from harness.motion.captures import demos_by_class, read_manifest
 
     if db.capture_dir is None or (config.test.split != "captures" and db.classes is None):
-        raise RunError(f"{config.name}: capture scenario not resolved (call scenario.resolve_capture first)")
+        raise RunError(f"{config.name}: capture scenario not resolved (call scenario_captures.resolve_capture first)")
     rows = read_manifest(Path(db.capture_dir) / db.manifest)
     by_class = demos_by_class(rows)
     if config.test.split == "captures":
