@@ -9,11 +9,12 @@ from engine_fixtures import CLASSES, synthetic_demos, synthetic_observation
 from harness.engine import MotionDatabase, TrackerConfig, motion_features, recognize_features
 from harness.engine.features import mirror_features
 from harness.engine.model import EngineModel
-from harness.engine.scoring import path_recognition
+from harness.engine.scoring import Scorer, path_recognition
 from harness.engine.track import twin
 from harness.errors import EngineError
 from harness.evaluation import pipeline, runner
-from harness.evaluation.scenario import ScenarioError, parse_scenario
+from harness.evaluation.loading import parse_scenario
+from harness.evaluation.scenario import ScenarioError
 from harness.motion.performer import CYCLIC, perform, training_set
 
 K = 6
@@ -134,7 +135,7 @@ def test_recognition_along_the_twin_of_a_path_is_recognition_along_the_path(body
     One take of this small database (three demonstrations a class) is decided differently under different draws
     of the model points (measured: 150 points drawn at random with seed 7 read all three takes right along the
     path, with seed 8 none), so each decision is the majority of three draws of 150 evenly spread points."""
-    cfg = TrackerConfig(recognise_velocities=False)
+    cfg = TrackerConfig.from_dict({"likelihood.recognise_velocities": False})
     db = MotionDatabase(n_states=8, cyclic=CYCLIC, n_iter=5, mirrored=mirrored).fit(performed_classes)
     models = [EngineModel.build(db, body, 150, seed) for seed in (7, 8, 9)]
     for label in ("wave", "punch", "throw"):
@@ -142,8 +143,9 @@ def test_recognition_along_the_twin_of_a_path_is_recognition_along_the_path(body
         motion = perform(label, rng, subject=1000, body=body)[0]
         obs, pos, quat = synthetic_observation(body, motion, rng, heading=np.pi)
         true_class = list(db.classes_).index(label)
-        along_path = [path_recognition(m, cfg, obs, pos, quat)[1][-1] for m in models]
-        along_twin = [path_recognition(m, cfg, obs, pos, twin(quat))[1][-1] for m in models]
+        along_path = [path_recognition(Scorer(m, cfg.likelihood), cfg.belief, obs, pos, quat)[1][-1] for m in models]
+        along_twin = [path_recognition(Scorer(m, cfg.likelihood), cfg.belief, obs, pos, twin(quat))[1][-1]
+                      for m in models]
         assert sum(p.argmax() == true_class for p in along_path) >= 2, (label, along_path)
         if mirrored:
             assert sum(p.argmax() == true_class for p in along_twin) >= 2, (label, along_twin)

@@ -56,14 +56,16 @@ def test_tracks_share_the_particles_up_to_the_cap(body, trained):
     m = synthetic_demos(body, "march", 1, np.random.default_rng(3), seconds=1.0)[0]
     obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))
     for particles, cap in ((90, 1000), (90, 4)):
-        cfg = TrackerConfig(particles=particles, track_particles_max=cap, model_points=40, track_turns=(180.0,))
+        cfg = TrackerConfig.from_dict(
+            {"tracks.particles": particles, "tracks.particles_max": cap, "model.points": 40, "spawn.turns": (180.0,)}
+        )
         tracker = Tracker(trained, body, cfg)
         tracker.reset(obs.intrinsics, obs.fps, np.random.default_rng(5))
         sizes = []
         for flows in obs.flows:
             proposed = len(tracker.tracks)            # the tracks this frame's proposal shares the particles among
             tracker.step(flows)
-            share = particles // (len(trained.classes_) * cfg.n_tracks) if not proposed else particles // proposed
+            share = particles // (len(trained.classes_) * cfg.spawn.n_tracks) if not proposed else particles // proposed
             sizes += [(len(track.cloud), min(share, cap)) for track in tracker.tracks]
         assert sizes and all(n == expected for n, expected in sizes)
         assert max(n for n, _ in sizes) <= cap
@@ -75,23 +77,25 @@ def test_each_primitive_spawns_its_own_set_of_tracks_from_its_own_weighing(body,
     primitive alone (computed here from the cloud and the per-primitive likelihoods)."""
     m = synthetic_demos(body, "march", 1, np.random.default_rng(3), seconds=0.5)[0]
     obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))
-    cfg = TrackerConfig(particles=90, model_points=40, track_turns=(180.0,), twin_track=True)
+    cfg = TrackerConfig.from_dict(
+        {"tracks.particles": 90, "model.points": 40, "spawn.turns": (180.0,), "spawn.twin": True}
+    )
     tracker = Tracker(trained, body, cfg)
     tracker.reset(obs.intrinsics, obs.fps, np.random.default_rng(5))
     tracker.step(obs.flows[0])
     frame = tracker._frames.next(obs.flows[1])
-    source = ParticleTracks(tracker.scorer, np.random.default_rng(6))
+    source = tracker.particle_tracks(np.random.default_rng(6))
     tracks = source.start(frame)
     C = len(trained.classes_)
-    assert len(tracks) == C * cfg.n_tracks == C * 3
+    assert len(tracks) == C * cfg.spawn.n_tracks == C * 3
     for c in range(C):
         own = [t for t in tracks if t.primitive == c]
         assert [t.origin for t in own] == [f"{trained.classes_[c]}/{o}" for o in ("lead", "turn+180", "twin")]
         for t in own:
             assert t.recognizer.class_posterior[c] == pytest.approx(1.0)
-            assert len(t.cloud) == cfg.particles // (C * 3)
+            assert len(t.cloud) == cfg.tracks.particles // (C * 3)
     # The same draws again: each primitive's own weighing of the first cloud, and its lead's orientation.
-    again = ParticleTracks(tracker.scorer, np.random.default_rng(6))
+    again = tracker.particle_tracks(np.random.default_rng(6))
     wide, per_class, _ = again.first_cloud(frame)
     for c in range(C):
         weighed = copy.deepcopy(wide)
@@ -110,7 +114,9 @@ def test_the_first_frame_counts_once_and_later_frames_weigh(body, trained):
     frame weighs them (their proposal weights times that frame's tempered likelihoods under each track's belief)."""
     m = synthetic_demos(body, "march", 1, np.random.default_rng(3), seconds=0.5)[0]
     obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))
-    tracker = Tracker(trained, body, TrackerConfig(particles=90, model_points=40, track_turns=(180.0,)))
+    tracker = Tracker(
+        trained, body, TrackerConfig.from_dict({"tracks.particles": 90, "model.points": 40, "spawn.turns": (180.0,)})
+    )
     tracker.reset(obs.intrinsics, obs.fps, np.random.default_rng(5))
     tracker.step(obs.flows[0])
     tracker.step(obs.flows[1])                          # the first frame with flows: the spawn
@@ -215,7 +221,7 @@ def test_a_known_floor_places_the_spawned_lead_within_ten_percent_of_the_true_de
 def test_the_same_seed_gives_an_identical_estimate(body, trained):
     m = synthetic_demos(body, "wave", 1, np.random.default_rng(21), seconds=0.6)[0]
     obs, _, _ = synthetic_observation(body, m, np.random.default_rng(22))
-    cfg = TrackerConfig(particles=60, model_points=40)
+    cfg = TrackerConfig.from_dict({"tracks.particles": 60, "model.points": 40})
     one, two = (Tracker(trained, body, cfg, rng=np.random.default_rng(23)).run(obs) for _ in range(2))
     for name in ("qpos", "class_posterior", "filter_pos", "filter_quat", "n_tracks"):
         np.testing.assert_array_equal(getattr(one, name), getattr(two, name))

@@ -74,6 +74,7 @@ def test_the_records_class_posterior_in_log_space_is_the_mixture_and_sees_past_u
 
 
 def test_the_engine_settings_refuse_a_meaningless_calibration():
-    for bad in ({"posterior_temperature": 0.0}, {"posterior_floor": 1.0}, {"posterior_floor": -0.01}):
+    for bad in ({"belief.posterior_temperature": 0.0}, {"belief.posterior_floor": 1.0},
+                {"belief.posterior_floor": -0.01}):
         with pytest.raises(EngineError, match="posterior_"):
-            TrackerConfig(**bad)
+            TrackerConfig.from_dict(bad)

@@ -135,7 +135,7 @@ def test_stored_rows_agree_with_the_other_recognition_columns(tmp_path):
     mean of correct, and the calibration table is written beside the others."""
     from fakes import TINY, fake_run
     from harness.evaluation.runner import run_scenario
-    from harness.evaluation.scenario import parse_scenario
+    from harness.evaluation.loading import parse_scenario
     from harness.evaluation.tables import write_tables
 
     rows = run_scenario(parse_scenario(TINY), tmp_path / "tiny", fake_run, progress=False)
@@ -158,11 +158,18 @@ def test_the_pipeline_stores_the_posterior_that_decides(tmp_path):
     class_pred, its maximum the confidence, its true-class entry exp(log_p_true)), and methods that do not
     recognise store none."""
     from harness.evaluation import pipeline, runner
-    from harness.evaluation.scenario import parse_scenario
+    from harness.evaluation.loading import parse_scenario
 
-    scenario = parse_scenario({"name": "cal", "seed": 3, "test": {"demos_per_class": 1},
-                               "database": {"classes": ["walk", "squat", "kick"], "train_demos": 2, "states": 4},
-                               "markers": {"count": 30}, "engine": {"particles": 30, "model_points": 30}})
+    scenario = parse_scenario(
+        {
+            "name": "cal",
+            "seed": 3,
+            "test": {"demos_per_class": 1},
+            "database": {"classes": ["walk", "squat", "kick"], "train_demos": 2, "states": 4},
+            "markers": {"count": 30},
+            "engine": {"tracks": {"particles": 30}, "model": {"points": 30}},
+        }
+    )
     run = runner.plan(scenario, tmp_path)[0]
     rows = pd.DataFrame([run.identity() | r for r in pipeline.run_one(run)])
     rec = rows[rows["method"] != "no_database"]

@@ -7,13 +7,13 @@ import pytest
 
 from harness.evaluation.pipeline import run_one
 from harness.evaluation.runner import run_scenario
-from harness.evaluation.scenario import parse_scenario
+from harness.evaluation.loading import parse_scenario
 
 distributed = pytest.importorskip("dask.distributed", reason="dask[distributed] is in the test extra")
 
 TINY = {"name": "dask", "seed": 9, "database": {"classes": ["walk", "squat", "kick"], "train_demos": 3, "states": 6},
         "test": {"demos_per_class": 1}, "markers": {"count": 40}, "camera": {"azimuth": "random"},
-        "engine": {"particles": 40, "model_points": 40}}
+        "engine": {"tracks": {"particles": 40}, "model": {"points": 40}}}
 
 
 def test_a_local_cluster_gives_the_rows_of_one_local_job(tmp_path):

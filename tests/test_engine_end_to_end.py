@@ -18,7 +18,12 @@ def trained(body):
 
 def test_recognition_beats_chance_by_a_wide_margin(body, trained):
     rng = np.random.default_rng(99)
-    tracker = Tracker(trained, body, TrackerConfig(particles=150, model_points=120), rng=np.random.default_rng(5))
+    tracker = Tracker(
+        trained,
+        body,
+        TrackerConfig.from_dict({"tracks.particles": 150, "model.points": 120}),
+        rng=np.random.default_rng(5),
+    )
     right, pos_err = 0, []
     for c in CLASSES:
         for m in synthetic_demos(body, c, 2, rng):
@@ -35,8 +40,10 @@ def test_recognition_beats_chance_by_a_wide_margin(body, trained):
 def test_same_seed_same_estimate(body, trained):
     m = synthetic_demos(body, "wave", 1, np.random.default_rng(3), seconds=0.6)[0]
     obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))
-    runs = [Tracker(trained, body, TrackerConfig(particles=50), rng=np.random.default_rng(8)).run(obs)
-            for _ in range(2)]
+    runs = [
+        Tracker(trained, body, TrackerConfig.from_dict({"tracks.particles": 50}), rng=np.random.default_rng(8)).run(obs)
+        for _ in range(2)
+    ]
     np.testing.assert_array_equal(runs[0].qpos, runs[1].qpos)
     np.testing.assert_array_equal(runs[0].class_posterior, runs[1].class_posterior)
 
@@ -44,7 +51,7 @@ def test_same_seed_same_estimate(body, trained):
 def test_bad_input_is_named(body, trained):
     m = synthetic_demos(body, "squat", 1, np.random.default_rng(3), seconds=0.5)[0]
     obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))
-    tracker = Tracker(trained, body, TrackerConfig(particles=20))
+    tracker = Tracker(trained, body, TrackerConfig.from_dict({"tracks.particles": 20}))
     bad = [f.copy() for f in obs.flows]
     bad[3][0, 1] = np.nan
     with pytest.raises(ObservationError, match="frame 3, row 0"):
@@ -53,8 +60,8 @@ def test_bad_input_is_named(body, trained):
     bad[2][1, 0] = -5.0
     with pytest.raises(ObservationError, match="outside the 640x480 image"):
         tracker.run(Observation(obs.fps, obs.intrinsics, bad))
-    with pytest.raises(EngineError, match="particles must be positive"):
-        TrackerConfig(particles=0)
+    with pytest.raises(EngineError, match=r"tracks.particles must be in \[1, 1000000\]"):
+        TrackerConfig.from_dict({"tracks.particles": 0})
     with pytest.raises(EngineError, match="nothing to estimate"):
         tracker.run(Observation(obs.fps, obs.intrinsics, [np.empty((0, 4))] * 5))
     trained_bad = MotionDatabase(n_states=10)
@@ -84,7 +91,7 @@ def test_a_given_base_pose_is_kept(body, trained):
     # The ground-truth-pose baseline: recovery fits the angles at the given pose and never moves it.
     m = synthetic_demos(body, "squat", 1, np.random.default_rng(6), seconds=0.6)[0]
     obs, base_pos, base_quat = synthetic_observation(body, m, np.random.default_rng(7))
-    est = Tracker(trained, body, TrackerConfig(particles=20), rng=np.random.default_rng(1)).run(
+    est = Tracker(trained, body, TrackerConfig.from_dict({"tracks.particles": 20}), rng=np.random.default_rng(1)).run(
         obs, base_pose=(base_pos, base_quat))
     np.testing.assert_allclose(est.qpos[:, :3], base_pos, atol=1e-12)
     np.testing.assert_allclose(np.abs(np.sum(est.qpos[:, 3:7] * base_quat, axis=1)), 1.0, atol=1e-12)

@@ -38,9 +38,9 @@ def test_batched_weighing_equals_a_loop_over_tracks_and_classes(body, trained, c
     ``log sum_c w_c p(y | x, c)`` of a loop over tracks and terms, each term projected on its own (tracks that
     believe in several primitives: a track of one primitive has one term)."""
     obs, _, _ = clip
-    tracker = Tracker(trained, body, TrackerConfig(particles=60, model_points=40, weigh_class_mass=0.9999,
-                                                   class_tracks=False, weigh_by_belief=True),
-                      rng=np.random.default_rng(2))
+    cfg = TrackerConfig.from_dict({"tracks.particles": 60, "model.points": 40, "tracks.weigh_class_mass": 0.9999,
+                                   "spawn.per_class": False, "tracks.weigh_by_belief": True})
+    tracker = Tracker(trained, body, cfg, rng=np.random.default_rng(2))
     _stepped(tracker, obs, 6, rng=np.random.default_rng(2))
     tracks, source, scorer = tracker.tracks, tracker.source, tracker.scorer
     assert len(tracks) >= 2
@@ -51,12 +51,12 @@ def test_batched_weighing_equals_a_loop_over_tracks_and_classes(body, trained, c
     batched = source.log_likelihoods(frame, tracks)
     terms = []
     for track, got in zip(tracks, batched):
-        log_w, rows = track.pose_mixture(scorer.config)
+        log_w, rows = track.pose_mixture(tracker.config.tracks)
         mixes = PointDistributions.concatenate([scorer.model.dists.mixture(r) for r in rows])
         terms.append(len(log_w))
         rot = geometry.to_matrix(track.cloud.quats)
         each = [scorer.frame_log_likelihood(frame, scorer.image(frame, rot, track.cloud.positions, mixes.take([c])),
-                                            scorer.config.n_eff_filter) for c in range(len(log_w))]
+                                            scorer.settings.n_eff_filter) for c in range(len(log_w))]
         np.testing.assert_allclose(got, logsumexp(np.array(each) + log_w[:, None], axis=0), rtol=1e-12, atol=1e-12)
     assert max(terms) >= 2                  # the case that needs the packing: several terms in one track
     # The packing itself: track j's pairs run term by term over all its particles.
@@ -71,15 +71,20 @@ def test_one_primitive_tracks_and_the_unrefined_recoveries_take_shortcuts_to_the
     under the belief's most probable primitive)."""
     from harness.engine.recovery import recover
     obs, _, _ = clip
-    tracker = Tracker(trained, body, TrackerConfig(particles=60, model_points=40), rng=np.random.default_rng(2))
+    tracker = Tracker(
+        trained,
+        body,
+        TrackerConfig.from_dict({"tracks.particles": 60, "model.points": 40}),
+        rng=np.random.default_rng(2),
+    )
     _stepped(tracker, obs, 4, rng=np.random.default_rng(2))
     frame = tracker._frames.next(obs.flows[4])
-    ranked = sorted(tracker.tracks, key=lambda t: -t.log_evidence)[tracker.config.recover_tracks:]
+    ranked = sorted(tracker.tracks, key=lambda t: -t.log_evidence)[tracker.config.recovery.tracks:]
     assert len(ranked) >= 2 and all(t.primitive is not None for t in ranked)
     for track in ranked:
         pos, quat = track.pose
         each = recover(tracker.scorer, frame, track.best_state_belief(), pos, geometry.to_matrix(quat),
-                       track.pose_std, refine=False)
+                       track.pose_std, settings=tracker.config.recovery, refine=False)
         np.testing.assert_allclose(track.recovery.angles, each.angles, rtol=0, atol=1e-12)
         np.testing.assert_array_equal(track.recovery.rotation, each.rotation)
         assert not track.recovery.refined
@@ -109,9 +114,9 @@ def test_prune_drops_the_far_behind_and_merge_keeps_the_better_of_two_that_met()
 
 
 def test_spawn_takes_each_orientations_own_particles_or_the_leads_turned(body, trained):
-    cfg = TrackerConfig(particles=50, track_turns=(90.0, 180.0), twin_track=False)
+    cfg = TrackerConfig.from_dict({"tracks.particles": 50, "spawn.turns": (90.0, 180.0), "spawn.twin": False})
     tracker = Tracker(trained, body, cfg)
-    source = ParticleTracks(tracker.scorer, np.random.default_rng(0))
+    source = tracker.particle_tracks(np.random.default_rng(0))
     rng = np.random.default_rng(1)
     n = 200
     pos = np.array([0.0, 0.5, 4.0]) + rng.normal(0, 0.1, (n, 3))
@@ -121,7 +126,7 @@ def test_spawn_takes_each_orientations_own_particles_or_the_leads_turned(body, t
     wide = ParticleCloud(pos, quats, np.log(weights / weights.sum()))
     lead, quarter, half = source.spawn(wide, None)
     assert (lead.origin, quarter.origin, half.origin) == ("lead", "turn+90", "turn+180")
-    assert len(lead.cloud) == len(quarter.cloud) == len(half.cloud) == cfg.particles // 3
+    assert len(lead.cloud) == len(quarter.cloud) == len(half.cloud) == cfg.tracks.particles // 3
     rows = {tuple(p): i for i, p in enumerate(pos)}
     # The half turn has particles of its own (60 of 200, many effective ones): their own poses.
     own = [rows[tuple(p)] for p in half.cloud.positions]
@@ -140,7 +145,7 @@ def test_stepping_frame_by_frame_gives_runs_estimate_with_leading_empty_frames(b
     obs, _, _ = clip
     flows = [np.empty((0, 4))] * 3 + list(obs.flows)
     padded = Observation(obs.fps, obs.intrinsics, flows)
-    cfg = TrackerConfig(particles=40, model_points=40)
+    cfg = TrackerConfig.from_dict({"tracks.particles": 40, "model.points": 40})
     whole = Tracker(trained, body, cfg, rng=np.random.default_rng(9)).run(padded)
     live = Tracker(trained, body, cfg)
     live.reset(padded.intrinsics, padded.fps, np.random.default_rng(9))
@@ -187,8 +192,8 @@ def test_records_pad_with_the_first_estimate_and_the_known_pose():
 
 def test_the_given_pose_source_holds_the_pose_and_recovery_moves_only_the_angles(body, trained, clip):
     obs, base_pos, base_quat = clip
-    tracker = Tracker(trained, body, TrackerConfig(particles=20, model_points=40))
-    source = GivenPose(tracker.scorer, base_pos, base_quat)
+    tracker = Tracker(trained, body, TrackerConfig.from_dict({"tracks.particles": 20, "model.points": 40}))
+    source = GivenPose(tracker.scorer, tracker.config.belief, base_pos, base_quat)
     tracker.reset(obs.intrinsics, obs.fps, source=source)
     for f in obs.flows:
         tracker.step(f)
@@ -205,16 +210,16 @@ def test_recognition_scores_velocities_given_positions_at_a_tracked_pose_and_flo
     flows' velocities given their positions; at a given pose (no pose error) those of the flows themselves, so
     the ground-truth-pose baseline does not depend on the setting."""
     obs, base_pos, base_quat = clip
-    tracker = Tracker(trained, body, TrackerConfig(particles=20, model_points=40))
+    tracker = Tracker(trained, body, TrackerConfig.from_dict({"tracks.particles": 20, "model.points": 40}))
     scorer = tracker.scorer
     _stepped(tracker, obs, 3)
     frame = tracker._frames.next(obs.flows[3])
     rot = geometry.to_matrix(base_quat[3][None])
-    rec = Recognizer(trained, scorer.config.start_spread, scorer.config.prune)
+    rec = Recognizer(trained, tracker.config.belief.start_spread, tracker.config.belief.prune)
     states = np.flatnonzero(rec.active().ravel())
     img = scorer.image(frame, np.repeat(rot, len(states), axis=0), np.repeat(base_pos[3][None], len(states), axis=0),
                        scorer.model.dists, states)
-    n_eff = scorer.config.n_eff_recognition
+    n_eff = scorer.settings.n_eff_recognition
     velocities = tempered(velocity_log_likelihoods(frame.flows, img, scorer.flow_model(frame),
                                                    open_mask=frame.open), n_eff)
     flows = scorer.frame_log_likelihood(frame, img, n_eff)
@@ -225,8 +230,14 @@ def test_recognition_scores_velocities_given_positions_at_a_tracked_pose_and_flo
         log_b = np.zeros(rec.log_alpha.size)
         log_b[states] = expected
         np.testing.assert_allclose(gained, copy.deepcopy(rec).update(log_b.reshape(rec.log_alpha.shape)), rtol=1e-12)
-    runs = [Tracker(trained, body, TrackerConfig(particles=20, model_points=40, recognise_velocities=v)).run(
-        obs, base_pose=(base_pos, base_quat)) for v in (True, False)]
+    runs = [
+        Tracker(
+            trained,
+            body,
+            TrackerConfig.from_dict({"tracks.particles": 20, "model.points": 40, "likelihood.recognise_velocities": v}),
+        ).run(obs, base_pose=(base_pos, base_quat))
+        for v in (True, False)
+    ]
     np.testing.assert_array_equal(runs[0].class_posterior, runs[1].class_posterior)
 
 
@@ -247,7 +258,7 @@ def test_a_track_of_several_primitives_weighs_its_pose_under_every_primitive_ali
     ``weigh_by_belief`` it is the belief's top primitives, which do move."""
     rec = _belief_over_two_primitives(trained, rng)
     track = Track(0, "lead", rec)
-    log_w, rows = track.pose_mixture(TrackerConfig())
+    log_w, rows = track.pose_mixture(TrackerConfig().tracks)
     C, K = rec.log_alpha.shape
     blocks = rows.reshape(C, K)
     expect = np.where(rec.active(), rec.state_posterior, 0.0)[:2]
@@ -259,8 +270,8 @@ def test_a_track_of_several_primitives_weighs_its_pose_under_every_primitive_ali
     shifted = Track(1, "lead", copy.copy(rec))       # a shallow copy is a snapshot (Recognizer.log_alpha)
     shifted.recognizer.log_alpha = rec.log_alpha + np.array([-4.0, 2.0] + [0.0] * (C - 2))[:, None]
     assert not np.allclose(shifted.recognizer.class_posterior, rec.class_posterior)
-    np.testing.assert_allclose(shifted.pose_mixture(TrackerConfig())[1], rows, rtol=1e-12, atol=1e-15)
-    by_belief = TrackerConfig(weigh_by_belief=True, weigh_class_mass=0.9999)
+    np.testing.assert_allclose(shifted.pose_mixture(TrackerConfig().tracks)[1], rows, rtol=1e-12, atol=1e-15)
+    by_belief = TrackerConfig.from_dict({"tracks.weigh_by_belief": True, "tracks.weigh_class_mass": 0.9999}).tracks
     assert not np.allclose(shifted.pose_mixture(by_belief)[0], track.pose_mixture(by_belief)[0])
 
 
@@ -294,8 +305,8 @@ def test_a_copied_belief_is_a_snapshot_and_new_beliefs_are_independent(body, tra
         np.testing.assert_array_equal(snap.class_posterior, rec.class_posterior)
 
     cfg = TrackerConfig()
-    source = ParticleTracks(Tracker(trained, body, cfg).scorer, np.random.default_rng(0))
-    a, b, fresh = source.new_belief(), source.new_belief(), new_recognizer(trained, cfg)
+    source = Tracker(trained, body, cfg).particle_tracks(np.random.default_rng(0))
+    a, b, fresh = source.new_belief(), source.new_belief(), new_recognizer(trained, cfg.belief)
     for got in (a, b):
         np.testing.assert_array_equal(got.log_alpha, fresh.log_alpha)
         np.testing.assert_array_equal(got.posterior, fresh.posterior)
@@ -305,7 +316,7 @@ def test_a_copied_belief_is_a_snapshot_and_new_beliefs_are_independent(body, tra
     a.update(rng.normal(-20.0, 5.0, a.log_alpha.shape))
     np.testing.assert_array_equal(b.log_alpha, fresh.log_alpha)
     np.testing.assert_array_equal(b.class_posterior, fresh.class_posterior)
-    log_w, rows = Track(0, "walk/lead", a, primitive=1).pose_mixture(cfg)
+    log_w, rows = Track(0, "walk/lead", a, primitive=1).pose_mixture(cfg.tracks)
     expect = np.zeros(a.log_alpha.shape)
     expect[1] = np.where(a.active()[1], a.posterior[1], 0.0)
     np.testing.assert_array_equal(log_w, [0.0])

@@ -71,16 +71,23 @@ def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trai
     """Along a given pose path, a track's evidence is log p(y_1:T) of the HMMs with the classes and states
     summed out: here an explicit forward algorithm over every (class, state), emissions scored state by state
     (the flows' velocities given their positions, or the flows, as ``recognise_velocities`` says)."""
-    cfg = TrackerConfig(model_points=40, prune=1e-300, start_spread=0.1, recognise_velocities=velocities)
+    cfg = TrackerConfig.from_dict(
+        {
+            "model.points": 40,
+            "belief.prune": 1e-300,
+            "belief.start_spread": 0.1,
+            "likelihood.recognise_velocities": velocities,
+        }
+    )
     per_flow = velocity_log_likelihoods if velocities else flow_log_likelihoods
-    model = EngineModel.build(trained, body, cfg.model_points, cfg.model_seed)
+    model = EngineModel.build(trained, body, cfg.model.points, cfg.model.seed)
     m = synthetic_demos(body, "wave", 1, np.random.default_rng(3), seconds=0.4)[0]
     obs, pos, quat = synthetic_observation(body, m, np.random.default_rng(4))
-    got = path_evidence(model, cfg, obs, pos, quat)
+    got = path_evidence(Scorer(model, cfg.likelihood), cfg.belief, obs, pos, quat)
     C, K = trained.means_.shape[:2]
-    start = ((1 - cfg.start_spread) * trained.startprob_ + cfg.start_spread / K) / C     # (C, K)
-    region = OpenRegion(obs.intrinsics.width, obs.intrinsics.height, cfg.open_cell_px,
-                        int(round(cfg.open_memory_s * obs.fps)))
+    start = ((1 - cfg.belief.start_spread) * trained.startprob_ + cfg.belief.start_spread / K) / C     # (C, K)
+    region = OpenRegion(obs.intrinsics.width, obs.intrinsics.height, cfg.likelihood.open_cell_px,
+                        int(round(cfg.likelihood.open_memory_s * obs.fps)))
     alpha, total, first = None, [], True
     for t, flows in enumerate(obs.flows):
         mask = region.update(flows)
@@ -91,13 +98,13 @@ def test_path_evidence_is_the_brute_force_sum_over_classes_and_states(body, trai
         for c in range(C):
             for k in range(K):
                 img = to_image(obs.intrinsics, geometry.to_matrix(quat[t])[None], pos[t][None],
-                               model.dists.take([c * K + k]), occlusion=Scorer(model, cfg).occlusion)
-                ll = per_flow(flows, img, FlowModel(cfg.noise_px, obs.fps, obs.intrinsics.width,
-                                                    obs.intrinsics.height, cfg.outlier_prob,
-                                                    weight_iterations=cfg.weight_iterations,
-                                                    smoothing=cfg.weight_smoothing),
+                               model.dists.take([c * K + k]), occlusion=Scorer(model, cfg.likelihood).occlusion)
+                ll = per_flow(flows, img, FlowModel(cfg.likelihood.noise_px, obs.fps, obs.intrinsics.width,
+                                                    obs.intrinsics.height, cfg.likelihood.outlier_prob,
+                                                    weight_iterations=cfg.likelihood.weight_iterations,
+                                                    smoothing=cfg.likelihood.weight_smoothing),
                               open_mask=mask)
-                b[c, k] = tempered(ll, cfg.n_eff_recognition)[0]
+                b[c, k] = tempered(ll, cfg.likelihood.n_eff_recognition)[0]
         prior = start if first else np.einsum("cj,cjk->ck", alpha, trained.transmat_)
         joint = prior * np.exp(b)
         total.append(np.log(joint.sum()))
@@ -112,12 +119,13 @@ def test_class_evidence_along_a_path_splits_the_recursion_over_all_classes(body,
     without pruning the primitives do not interact, so ``log p(y | c) = log p(y) + log P(c | y) - log P(c)``
     with the uniform class prior (pruned states take the frame's worst emission, which the recursion over all
     primitives takes over all of them). Fails if a primitive's recursion saw the others' states."""
-    cfg = TrackerConfig(model_points=40, prune=1e-300)
-    model = EngineModel.build(trained, body, cfg.model_points, cfg.model_seed)
+    cfg = TrackerConfig.from_dict({"model.points": 40, "belief.prune": 1e-300})
+    model = EngineModel.build(trained, body, cfg.model.points, cfg.model.seed)
     m = synthetic_demos(body, "wave", 1, np.random.default_rng(3), seconds=0.5)[0]
     obs, pos, quat = synthetic_observation(body, m, np.random.default_rng(4))
-    got = path_class_evidence(model, cfg, obs, pos, quat)
-    per_frame, posterior = path_recognition(model, cfg, obs, pos, quat)
+    scorer = Scorer(model, cfg.likelihood)
+    got = path_class_evidence(scorer, cfg.belief, obs, pos, quat)
+    per_frame, posterior = path_recognition(scorer, cfg.belief, obs, pos, quat)
     expected = per_frame.sum() + np.log(posterior[-1]) + np.log(len(CLASSES))
     np.testing.assert_allclose(got, expected, rtol=1e-9)
     assert np.ptp(got) > 1.0        # the classes differ, so the split is not trivially the total
@@ -137,8 +145,8 @@ def test_seen_from_the_front_the_true_heading_beats_its_twin(body, label):
     of nats (measured 2026-12-06, 150 points drawn at random: the bow's seed 0 -18.0, +24.8 and -14.9 nats, the
     squat's seed 1 +41.4, -19.6 and +62.7), so a single draw tested the draw as much as the likelihood."""
     db = MotionDatabase(cyclic=CYCLIC).fit(training_set(CLASSES_ALL, 3, seed=0, body=body))
-    cfg = TrackerConfig(recognise_velocities=False)
-    models = [EngineModel.build(db, body, cfg.model_points, draw) for draw in (7, 8, 9)]
+    cfg = TrackerConfig.from_dict({"likelihood.recognise_velocities": False})
+    models = [EngineModel.build(db, body, cfg.model.points, draw) for draw in (7, 8, 9)]
     for seed in (0, 1):
         rng = np.random.default_rng(100 + seed)
         motion = perform(label, rng, subject=7, body=body)[0]
@@ -147,7 +155,8 @@ def test_seen_from_the_front_the_true_heading_beats_its_twin(body, label):
         # (the pelvis pitches forward in a bow, so the axis is compared in the camera's horizontal plane)
         forward = geometry.rotate(quat, np.array([1.0, 0, 0]))
         assert np.all(np.abs(np.arctan2(forward[:, 0], -forward[:, 2])) < np.deg2rad(15))
-        margin = sum(path_evidence(m, cfg, obs, pos, quat).sum() - path_evidence(m, cfg, obs, pos, twin(quat)).sum()
+        margin = sum(path_evidence(Scorer(m, cfg.likelihood), cfg.belief, obs, pos, quat).sum()
+                     - path_evidence(Scorer(m, cfg.likelihood), cfg.belief, obs, pos, twin(quat)).sum()
                      for m in models)
         assert margin > 0, f"{label} seed {seed}: the twin wins by {-margin:.1f} nats"
 
@@ -206,10 +215,14 @@ def test_floor_prior_prefers_feet_on_the_floor():
     cfg = TrackerConfig()
     # Camera 1.5 m above the floor: the base 0.549 m below the camera puts the foot 1 mm above the floor.
     heights = np.array([[0.0, 0.549, 4.0], [0.0, 0.249, 4.0], [0.0, 0.849, 4.0]])   # on, 0.3 m up, 0.3 m under
-    lp = floor_log_prior(np.repeat(points, 3, axis=0), quat, heights, up, 1.5, cfg)
+    lp = floor_log_prior(np.repeat(points, 3, axis=0), quat, heights, up, 1.5, cfg.likelihood)
     assert lp[0] > lp[1] > lp[2]
-    expect = np.log((1 - cfg.floor_flight) * np.exp(-0.5 * (0.001 / cfg.floor_std) ** 2)
-                    / (np.sqrt(2 * np.pi) * cfg.floor_std) + cfg.floor_flight / cfg.floor_flight_height)
+    expect = np.log(
+        (1 - cfg.likelihood.floor_flight)
+        * np.exp(-0.5 * (0.001 / cfg.likelihood.floor_std) ** 2)
+        / (np.sqrt(2 * np.pi) * cfg.likelihood.floor_std)
+        + cfg.likelihood.floor_flight / cfg.likelihood.floor_flight_height
+    )
     assert lp[0] == pytest.approx(expect)
 
 
@@ -225,12 +238,20 @@ def test_floor_prior_at_any_orientation_against_a_loop_over_hypotheses(rng):
     positions = rng.normal(0.0, 0.5, (H, 3)) + [0.0, 0.0, 4.0]
     up = np.array([0.0, -np.cos(0.3), -np.sin(0.3)])
     cfg = TrackerConfig()
-    got = floor_log_prior(points, quats, positions, up, 1.2, cfg)
+    got = floor_log_prior(points, quats, positions, up, 1.2, cfg.likelihood)
     for n in range(H):
         world = Rotation.from_quat(quats[n, [1, 2, 3, 0]]).apply(points[n]) + positions[n]
         h = 1.2 + (world @ up).min()
-        flight = cfg.floor_flight / cfg.floor_flight_height if 0.0 <= h <= cfg.floor_flight_height else 0.0
-        ground = (1 - cfg.floor_flight) * np.exp(-0.5 * (h / cfg.floor_std) ** 2) / (np.sqrt(2 * np.pi) * cfg.floor_std)
+        flight = (
+            cfg.likelihood.floor_flight / cfg.likelihood.floor_flight_height
+            if 0.0 <= h <= cfg.likelihood.floor_flight_height
+            else 0.0
+        )
+        ground = (
+            (1 - cfg.likelihood.floor_flight)
+            * np.exp(-0.5 * (h / cfg.likelihood.floor_std) ** 2)
+            / (np.sqrt(2 * np.pi) * cfg.likelihood.floor_std)
+        )
         assert got[n] == pytest.approx(np.log(ground + flight), rel=1e-12, abs=1e-12)
 
 
@@ -244,7 +265,7 @@ def test_a_malformed_camera_prior_is_named(body, trained):
              ({"gravity": good[:, :2]}, "gravity must have shape"),
              ({"gravity": good, "camera_height": np.full(T, -1.0)}, "camera_height, frame 0: must be a finite"),
              ({"camera_height": np.full(T, 1.5)}, "camera_height needs gravity")]
-    tracker = Tracker(trained, body, TrackerConfig(particles=20))
+    tracker = Tracker(trained, body, TrackerConfig.from_dict({"tracks.particles": 20}))
     for extra, message in cases:
         bad = Observation(obs.fps, obs.intrinsics, obs.flows, **extra)
         with pytest.raises(EngineError, match=message):

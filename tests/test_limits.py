@@ -8,7 +8,8 @@ import pytest
 
 from harness.engine import TrackerConfig
 from harness.evaluation import limits
-from harness.evaluation.scenario import conditions, load_scenario, parse_scenario
+from harness.evaluation.loading import load_scenario, parse_scenario
+from harness.evaluation.sweep import conditions
 from harness.motion.performer import CLASSES, demonstrations
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
@@ -31,7 +32,7 @@ def test_shipped_scenarios_are_well_inside_the_limits(path):
 
 def test_the_estimate_grows_with_what_a_run_allocates():
     base = sum(limits.run_bytes(parse_scenario({"name": "b"})).values())
-    doubled = {"particles": 2 * TrackerConfig().particles}
+    doubled = {"tracks": {"particles": 2 * TrackerConfig().tracks.particles}}
     engine = limits.run_bytes(parse_scenario({"name": "e", "engine": doubled}))["engine"]
     assert engine == pytest.approx(2 * limits.run_bytes(parse_scenario({"name": "b"}))["engine"], rel=0.01)
     rendered = sum(limits.run_bytes(parse_scenario({"name": "r", "observation": {"mode": "rendered"}})).values())

@@ -5,11 +5,11 @@ import json
 import pytest
 
 from harness.evaluation import pipeline, runner
-from harness.evaluation.scenario import parse_scenario
+from harness.evaluation.loading import parse_scenario
 
 TINY = {"name": "pipe", "seed": 3, "database": {"classes": ["walk", "squat", "kick"], "train_demos": 3, "states": 6},
         "test": {"demos_per_class": 1}, "markers": {"count": 40}, "camera": {"azimuth": "random"},
-        "engine": {"particles": 40, "model_points": 40}}
+        "engine": {"tracks": {"particles": 40}, "model": {"points": 40}}}
 
 
 def _rows(runs) -> list[str]:

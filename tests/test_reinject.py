@@ -22,8 +22,9 @@ def clip(body):
     return synthetic_observation(body, m, np.random.default_rng(4))[0]
 
 
-CONFIG = TrackerConfig(particles=80, model_points=40, init_factor=2, prune=1e-300, reinject_every=3,
-                       reinject_window=4, reinject_classes=3, track_prune_nats=1e9)
+CONFIG = TrackerConfig.from_dict({"tracks.particles": 80, "model.points": 40, "spawn.factor": 2, "belief.prune": 1e-300,
+                                  "reinjection.every": 3, "reinjection.window": 4, "reinjection.classes": 3,
+                                  "tracks.prune_nats": 1e9})
 
 
 def brute_force_evidence(tracker, obs, primitive, poses):
@@ -31,10 +32,10 @@ def brute_force_evidence(tracker, obs, primitive, poses):
     matrix products in probability space, along ``poses`` ``{frame: (position, quaternion)}``."""
     cfg, model, scorer = tracker.config, tracker.model, tracker.scorer
     C, K = model.n_classes, model.n_states
-    start = np.exp(new_recognizer(model.db, cfg).restrict([primitive])._log_start)[primitive]
+    start = np.exp(new_recognizer(model.db, cfg.belief).restrict([primitive])._log_start)[primitive]
     trans = model.db.transmat_[primitive]
     alpha, total, started = start / start.sum(), 0.0, False
-    for frame in observation_frames(obs, cfg):
+    for frame in observation_frames(obs, cfg.likelihood):
         if frame.index not in poses:
             continue
         if started:
@@ -43,7 +44,9 @@ def brute_force_evidence(tracker, obs, primitive, poses):
             continue
         pos, quat = poses[frame.index]
         img = scorer.image(frame, geometry.to_matrix(quat)[None], pos[None], model.dists)
-        log_b = tempered(scorer.recognition_per_flow(frame, img), cfg.n_eff_recognition).reshape(C, K)[primitive]
+        log_b = tempered(scorer.recognition_per_flow(frame, img), cfg.likelihood.n_eff_recognition).reshape(C, K)[
+            primitive
+        ]
         top = log_b.max()
         joint = alpha * np.exp(log_b - top)
         total += np.log(joint.sum()) + top
@@ -54,7 +57,7 @@ def brute_force_evidence(tracker, obs, primitive, poses):
 def test_a_newcomers_evidence_is_the_forward_sum_along_the_path_it_claims(body, trained, clip):
     # With recognition from the velocities given the positions no alternative beats its parent on this clip (the
     # evidence hardly depends on the pose there, seeds 2-13 tried); the bookkeeping is the same for either rule.
-    config = replace(CONFIG, recognise_velocities=False)
+    config = CONFIG.with_values({"likelihood": {"recognise_velocities": False}})
     tracker = Tracker(trained, body, config, rng=np.random.default_rng(2))
     tracker.reset(clip.intrinsics, clip.fps)
     spawned, newcomers = set(), []
@@ -67,7 +70,7 @@ def test_a_newcomers_evidence_is_the_forward_sum_along_the_path_it_claims(body, 
         newcomers += [(tr, list(tr.history), tr.log_evidence) for tr in tracker.tracks
                       if tr.id not in before and tr.parent in spawned]
     assert newcomers, "no alternative beat its parent on this clip: the test needs one"
-    penalty = np.log(len(alternatives(config)))
+    penalty = np.log(len(alternatives(config.reinjection)))
     for new, history, evidence in newcomers[:4]:
         window = {s.index: s.pose for s in history if s.index is not None and s.index >= history[1].index}
         parent_path = {}
@@ -107,7 +110,7 @@ def test_screening_sums_each_alternatives_frames_under_the_moment_matched_belief
         tracker.step(flows)
     source, scorer = tracker.source, tracker.scorer
     tracks = tracker.tracks[:2]
-    alts = alternatives(CONFIG)[:3]
+    alts = alternatives(CONFIG.reinjection)[:3]
     got, cache = screen(scorer, source._frames, [t.history for t in tracks], alts)
     for track, row in zip(tracks, got):
         expected = np.zeros(len(alts))
@@ -118,7 +121,7 @@ def test_screening_sums_each_alternatives_frames_under_the_moment_matched_belief
             for k, alt in enumerate(alts):
                 p, q = alt.apply(snap.pose[0][None], snap.pose[1][None], None)
                 img = scorer.image(frame, geometry.to_matrix(q), p, blob)
-                expected[k] += scorer.frame_log_likelihood(frame, img, CONFIG.n_eff_recognition)[0]
+                expected[k] += scorer.frame_log_likelihood(frame, img, CONFIG.likelihood.n_eff_recognition)[0]
         np.testing.assert_allclose(row, expected, rtol=1e-9, atol=1e-9)
     # From the cache (the overlapping windows of successive calls): the same sums, and no frame scored again.
     calls = []

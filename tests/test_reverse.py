@@ -56,7 +56,15 @@ def test_the_reversed_model_is_the_transform_of_the_reversed_database(body, trai
 def test_the_backward_pass_is_repeatable_and_covers_every_frame(body, trained):
     m = synthetic_demos(body, "march", 1, np.random.default_rng(3), seconds=0.6)[0]
     obs, _, _ = synthetic_observation(body, m, np.random.default_rng(4))
-    cfg = TrackerConfig(particles=60, model_points=40, track_turns=(), init_factor=2, backward_pass=True)
+    cfg = TrackerConfig.from_dict(
+        {
+            "tracks.particles": 60,
+            "model.points": 40,
+            "spawn.turns": (),
+            "spawn.factor": 2,
+            "offline.backward_pass": True,
+        }
+    )
     one = Tracker(trained, body, cfg, rng=np.random.default_rng(5)).run(obs).offline
     two = Tracker(trained, body, cfg, rng=np.random.default_rng(5)).run(obs).offline
     np.testing.assert_array_equal(one.qpos, two.qpos)
@@ -98,9 +106,10 @@ def test_backward_starts_from_one_cloud_each_hold_their_own_and_are_weighed_once
     rng = np.random.default_rng(0)
     prior = np.log(np.full(4, 0.25))
     shared = ParticleCloud(rng.normal(size=(4, 3)), geometry.normalize(rng.normal(size=(4, 4))), prior.copy())
-    scorer = Tracker(trained, body, TrackerConfig(model_points=40)).scorer
-    tracks = SettledStarts(scorer, rng, [(0, "end:lead", shared), (1, "end:leader", shared)]).start(
-        SimpleNamespace(gravity=None))
+    tracker = Tracker(trained, body, TrackerConfig.from_dict({"model.points": 40}))
+    tracks = tracker.particle_tracks(
+        rng, SettledStarts, starts=[(0, "end:lead", shared), (1, "end:leader", shared)]
+    ).start(SimpleNamespace(gravity=None))
     assert len({id(t.cloud) for t in tracks}) == len(tracks) >= 2
     lls = [rng.normal(size=4) for _ in tracks]
     for track, ll in zip(tracks, lls):

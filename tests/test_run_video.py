@@ -11,10 +11,17 @@ from harness.evaluation.methods import EngineRuns
 from harness.evaluation.run_video import PANEL_WIDTH, TRUE_RGB, find_run, method_estimate
 from harness.pinhole import project
 
-TINY = {"name": "rv", "seed": 4, "database": {"classes": ["walk", "squat"], "train_demos": 3, "states": 6},
-        "test": {"demos_per_class": 1}, "markers": {"count": 50}, "camera": {"azimuth": 40},
-        "occluders": {"preset": "low_wall", "amount": 0.2}, "engine": {"particles": 40, "model_points": 40},
-        "methods": ["full", "full_smoothed"]}
+TINY = {
+    "name": "rv",
+    "seed": 4,
+    "database": {"classes": ["walk", "squat"], "train_demos": 3, "states": 6},
+    "test": {"demos_per_class": 1},
+    "markers": {"count": 50},
+    "camera": {"azimuth": 40},
+    "occluders": {"preset": "low_wall", "amount": 0.2},
+    "engine": {"tracks": {"particles": 40}, "model": {"points": 40}},
+    "methods": ["full", "full_smoothed"],
+}
 
 
 def test_run_video_redraws_a_stored_run(tmp_path, capsys):

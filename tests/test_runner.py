@@ -16,7 +16,8 @@ from harness.evaluation import runner
 from harness.evaluation.cache import cached, path_for_key
 from harness.evaluation.journal import ResultsError
 from harness.evaluation.journal import read as read_journal
-from harness.evaluation.scenario import PROCEDURAL_CLASSES, parse_scenario
+from harness.evaluation.loading import parse_scenario
+from harness.evaluation.scenario import PROCEDURAL_CLASSES
 
 from fakes import TINY, failing_run, fake_run, slow_fake_run  # noqa: E402
 
@@ -109,7 +110,7 @@ _CHILD = """
 import sys
 sys.path.insert(0, {tests!r})
 from harness.evaluation.runner import run_scenario
-from harness.evaluation.scenario import parse_scenario
+from harness.evaluation.loading import parse_scenario
 import fakes
 run_scenario(parse_scenario(fakes.TINY), {out!r}, fakes.slow_fake_run, progress=False)
 """

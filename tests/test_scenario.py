@@ -5,8 +5,10 @@ from pathlib import Path
 import pytest
 
 from harness.cli import main
-from harness.evaluation.scenario import (PROCEDURAL_CLASSES, ScenarioError, conditions, load_scenario,
-                                         parse_scenario, resolve_capture, scenario_hash)
+from harness.evaluation.loading import load_scenario, parse_scenario
+from harness.evaluation.scenario import PROCEDURAL_CLASSES, ScenarioError, scenario_hash
+from harness.evaluation.scenario_captures import resolve_capture
+from harness.evaluation.sweep import conditions
 
 from conftest import require_mocap
 
@@ -19,34 +21,57 @@ def _error(raw) -> str:
     return str(info.value)
 
 
-@pytest.mark.parametrize("raw, expected", [
-    ({"name": "x", "camera": {"distnce": 3}}, "s.yaml: camera.distnce: unknown key"),
-    ({"name": "x", "bogus": 1}, "s.yaml: bogus: unknown key"),
-    ({"name": "x", "sweep": {"markers.count": []}}, "s.yaml: sweep['markers.count']: empty list"),
-    ({"name": "x", "database": {"classes": ["walk", "run", "jump", "wlak"]}},
-     "s.yaml: database.classes[3]: unknown class 'wlak' (valid: walk, run,"),
-    ({"name": "x", "markers": {"count": "many"}}, "s.yaml: markers.count: Input should be a valid integer"),
-    ({"name": "x", "camera": {"azimuth": "left"}}, "s.yaml: camera.azimuth: Input should be a valid number"),
-    ({"name": "x", "sweep": {"markers.count": [10, -3]}}, "s.yaml: sweep['markers.count'][1]: at least one marker is needed (got -3)"),
-    ({"name": "x", "sweep": {"markers.cont": [10]}}, "s.yaml: sweep['markers.cont']: unknown key (valid: "),
-    ({"name": "x", "sweep": {"markers.count": 10}}, "s.yaml: sweep['markers.count']: must be a list"),
-    ({"name": "x", "engine": {"init_distance": [5, 2]}}, "s.yaml: engine.init_distance: must be [near, far]"),
-    ({"name": "x", "test": {"split": "all"}}, "s.yaml: test.split: 'all' does not fit database.source"),
-    ({"name": "x", "methods": ["full", "best"]}, "s.yaml: methods[1]: unknown method 'best' (valid: full, full_smoothed, gt_base"),
-    ({"seed": 3}, "s.yaml: name: required key is missing"),
-])
+@pytest.mark.parametrize(
+    "raw, expected",
+    [
+        ({"name": "x", "camera": {"distnce": 3}}, "s.yaml: camera.distnce: unknown key"),
+        ({"name": "x", "bogus": 1}, "s.yaml: bogus: unknown key"),
+        ({"name": "x", "sweep": {"markers.count": []}}, "s.yaml: sweep['markers.count']: empty list"),
+        (
+            {"name": "x", "database": {"classes": ["walk", "run", "jump", "wlak"]}},
+            "s.yaml: database.classes[3]: unknown class 'wlak' (valid: walk, run,",
+        ),
+        ({"name": "x", "markers": {"count": "many"}}, "s.yaml: markers.count: Input should be a valid integer"),
+        ({"name": "x", "camera": {"azimuth": "left"}}, "s.yaml: camera.azimuth: Input should be a valid number"),
+        (
+            {"name": "x", "sweep": {"markers.count": [10, -3]}},
+            "s.yaml: sweep['markers.count'][1]: at least one marker is needed (got -3)",
+        ),
+        ({"name": "x", "sweep": {"markers.cont": [10]}}, "s.yaml: sweep['markers.cont']: unknown key (valid: "),
+        ({"name": "x", "sweep": {"markers.count": 10}}, "s.yaml: sweep['markers.count']: must be a list"),
+        ({"name": "x", "engine": {"spawn": {"distance": [5, 2]}}}, "s.yaml: engine.spawn.distance: must increase"),
+        (
+            {"name": "x", "engine": {"init_distance": [2, 5]}},
+            "s.yaml: engine.init_distance: moved to engine.spawn.distance",
+        ),
+        (
+            {"name": "x", "engine": {"tracks": {"particles": 3}}},
+            "s.yaml: engine: tracks.particles (3) must be at least the tracks spawned",
+        ),
+        (
+            {"name": "x", "sweep": {"engine.particles": [10]}},
+            "s.yaml: sweep['engine.particles']: moved to engine.tracks.particles",
+        ),
+        ({"name": "x", "test": {"split": "all"}}, "s.yaml: test.split: 'all' does not fit database.source"),
+        (
+            {"name": "x", "methods": ["full", "best"]},
+            "s.yaml: methods[1]: unknown method 'best' (valid: full, full_smoothed, gt_base",
+        ),
+        ({"seed": 3}, "s.yaml: name: required key is missing"),
+    ],
+)
 def test_errors_name_the_key_and_what_was_expected(raw, expected):
     assert _error(raw).startswith(expected)
 
 
 def test_a_five_line_scenario_gets_the_documented_defaults():
-    s = parse_scenario({"name": "small", "sweep": {"engine.particles": [50, 100]}})
+    s = parse_scenario({"name": "small", "sweep": {"engine.tracks.particles": [50, 100]}})
     assert s.classes == PROCEDURAL_CLASSES and s.database.train_demos == 8 and s.database.states == 20
     assert s.database.fps == 30.0 and s.test.demos_per_class == 2 and s.test.split == "heldout"
     # A swept key's section holds the first condition's value (its unswept value is never run).
-    assert (s.engine.particles, s.engine.model_points, s.engine.model_seed, s.engine.init_distance) == \
+    assert (s.engine.tracks.particles, s.engine.model.points, s.engine.model.seed, s.engine.spawn.distance) == \
         (50, 120, 7, (2.0, 8.0))
-    assert parse_scenario({"name": "small"}).engine.particles == 500
+    assert parse_scenario({"name": "small"}).engine.tracks.particles == 500
     assert s.methods == ("full", "full_smoothed", "gt_base", "no_database", "joint_space")
 
 
@@ -120,7 +145,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_the_documented_schema_is_the_generated_one():
-    from harness.evaluation.scenario import schema_markdown, sweepable_keys
+    from harness.evaluation.schema_docs import schema_markdown
+    from harness.evaluation.sweep import sweepable_keys
 
     doc = (ROOT / "docs" / "evaluation.md").read_text()
     block = doc.split("<!-- schema:begin -->\n")[1].split("<!-- schema:end -->")[0]
@@ -137,10 +163,11 @@ def test_engine_reaches_every_tracker_setting_by_name():
 
     names = [f.name for f in dataclasses.fields(TrackerConfig)]
     assert list(EngineConfig.model_fields) == names
-    s = parse_scenario({"name": "e", "engine": {"guide_fraction": 0.2, "init_elevation": [0, 20]},
-                        "sweep": {"engine.n_eff_filter": [2.0, 6.0]}})
-    assert tracker_config(s) == TrackerConfig(guide_fraction=0.2, init_elevation=(0.0, 20.0), n_eff_filter=2.0)
-    assert [c.config.engine.n_eff_filter for c in conditions(s)] == [2.0, 6.0]
+    s = parse_scenario({"name": "e", "engine": {"motion": {"guide_fraction": 0.2}, "spawn": {"elevation": [0, 20]}},
+                        "sweep": {"engine.likelihood.n_eff_filter": [2.0, 6.0]}})
+    assert tracker_config(s) == TrackerConfig.from_dict({"motion.guide_fraction": 0.2, "spawn.elevation": (0.0, 20.0),
+                                                         "likelihood.n_eff_filter": 2.0})
+    assert [c.config.engine.likelihood.n_eff_filter for c in conditions(s)] == [2.0, 6.0]
 
 
 def test_scenario_sections_are_the_scene_specs():
@@ -237,9 +264,9 @@ def test_every_swept_condition_is_validated_as_written_not_the_base():
 def test_yaml_anchors_and_merge_keys_still_work(tmp_path):
     path = tmp_path / "a.yaml"
     path.write_text("name: a\nseed: &s 4\ndatabase: {seed: *s}\n"
-                    "engine: {<<: {particles: 50, model_points: 60}, particles: 80}\n")
+                    "engine: {tracks: {<<: {particles: 50, particles_max: 60}, particles: 80}}\n")
     s = load_scenario(path)
-    assert (s.seed, s.database.seed, s.engine.particles, s.engine.model_points) == (4, 4, 80, 60)
+    assert (s.seed, s.database.seed, s.engine.tracks.particles, s.engine.tracks.particles_max) == (4, 4, 80, 60)
 
 
 def test_capture_classes_are_checked_in_every_condition(tmp_path):

@@ -6,13 +6,15 @@ import pytest
 
 from harness.evaluation import pipeline, runner
 from harness.evaluation.report import make_report
-from harness.evaluation.scenario import ScenarioError, parse_scenario
+from harness.evaluation.loading import parse_scenario
+from harness.evaluation.scenario import ScenarioError
 from harness.evaluation.tables import STREAM_HEADLINE, headline, summary
 
 TINY = {"name": "tiny_stream", "seed": 3, "database": {"classes": ["walk", "squat", "kick"], "train_demos": 3,
                                                         "states": 6},
         "test": {"stream": {"count": 2, "primitives": [3, 3]}}, "markers": {"count": 40},
-        "engine": {"particles": 40, "model_points": 40, "primitive_switch": 0.02}, "methods": ["joint_space"]}
+        "engine": {"tracks": {"particles": 40}, "model": {"points": 40}, "belief": {"primitive_switch": 0.02}},
+        "methods": ["joint_space"]}
 
 
 @pytest.mark.parametrize("raw, match", [
@@ -50,7 +52,7 @@ def test_a_stream_run_is_scored_per_frame_and_switching_follows_the_changes(tmp_
     assert row["segments_true"] == [[s.label, s.start, s.stop] for s in stream.segments]
     assert {"frame_accuracy", "edit_score", "f1_10", "f1_25", "f1_50", "boundary_delay_s", "segments_pred"} <= set(row)
     assert "correct" not in row
-    isolated = parse_scenario(TINY | {"engine": TINY["engine"] | {"primitive_switch": 0.0}})
+    isolated = parse_scenario(TINY | {"engine": TINY["engine"] | {"belief": {"primitive_switch": 0.0}}})
     row0 = pipeline.run_one(runner.plan(isolated, tmp_path)[0])[0]
     # With true angles the switching recursion meets issue 15's stream target (frame accuracy 0.85); the
     # isolated one, which can only drift between primitives through their joint normalisation, does worse.

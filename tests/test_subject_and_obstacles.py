@@ -103,9 +103,15 @@ def test_a_pillar_hides_what_its_lines_of_sight_cross(body, walk):
 
 
 def _tiny(tmp_path, extra: dict) -> str:
-    raw = {"name": "tiny", "seed": 2, "database": {"classes": ["walk", "squat"], "train_demos": 3, "states": 6},
-           "test": {"demos_per_class": 1}, "markers": {"count": 50}, "engine": {"particles": 40, "model_points": 40},
-           "methods": ["full", "gt_base"]} | extra
+    raw = {
+        "name": "tiny",
+        "seed": 2,
+        "database": {"classes": ["walk", "squat"], "train_demos": 3, "states": 6},
+        "test": {"demos_per_class": 1},
+        "markers": {"count": 50},
+        "engine": {"tracks": {"particles": 40}, "model": {"points": 40}},
+        "methods": ["full", "gt_base"],
+    } | extra
     path = tmp_path / "tiny.yaml"
     path.write_text(yaml.safe_dump(raw))
     return str(path)

@@ -145,10 +145,11 @@ def test_a_track_gets_a_switching_recognizer_when_asked():
     from harness.engine.track import new_recognizer
 
     db = two_primitives()
-    assert isinstance(new_recognizer(db, TrackerConfig(primitive_switch=0.01)), SwitchingRecognizer)
-    assert type(new_recognizer(db, TrackerConfig())) is Recognizer
+    switching = TrackerConfig.from_dict({"belief.primitive_switch": 0.01}).belief
+    assert isinstance(new_recognizer(db, switching), SwitchingRecognizer)
+    assert type(new_recognizer(db, TrackerConfig().belief)) is Recognizer
     with pytest.raises(EngineError, match="primitive_switch"):
-        TrackerConfig(primitive_switch=1.5)
+        TrackerConfig.from_dict({"belief.primitive_switch": 1.5})
 
 
 def test_online_labels_report_a_change_after_min_frames_of_lead():
@@ -168,15 +169,18 @@ def test_a_stream_track_prunes_by_stream_prune_so_a_primitive_entered_mid_stream
     isolated one with ``prune``. With a start distribution of 0.95 on one state and the spread's 0.05 over 40
     states (1.25e-3 each, relative to the best), 1e-2 drops the spread states while 1e-4 keeps them all: the entry
     of a primitive mid-stream must be followable."""
-    from harness.engine.config import TrackerConfig
+    from dataclasses import replace
+
+    from harness.engine.config import BeliefSettings
     from harness.engine.track import new_recognizer
 
     K = 40
     db = two_primitives(K)
     db.startprob_ = np.full((2, K), 0.0)
     db.startprob_[:, 0] = 1.0
-    stream = new_recognizer(db, TrackerConfig(primitive_switch=0.02, start_spread=0.05, prune=1e-2, stream_prune=1e-4))
-    clip = new_recognizer(db, TrackerConfig(start_spread=0.05, prune=1e-2, stream_prune=1e-4))
+    belief = BeliefSettings(start_spread=0.05, prune=1e-2, stream_prune=1e-4)
+    stream = new_recognizer(db, replace(belief, primitive_switch=0.02))
+    clip = new_recognizer(db, belief)
     assert isinstance(stream, SwitchingRecognizer) and not isinstance(clip, SwitchingRecognizer)
     assert stream.active().all()
     assert clip.active().sum() == 2 and clip.active()[:, 0].all()

@@ -9,7 +9,7 @@ from harness.evaluation import stats, tables
 from harness.evaluation.methods import CURVE_POINTS
 from harness.evaluation.report import make_report
 from harness.evaluation.runner import run_scenario
-from harness.evaluation.scenario import parse_scenario
+from harness.evaluation.loading import parse_scenario
 
 from fakes import TINY, fake_run  # noqa: E402
 

@@ -11,7 +11,8 @@ from conftest import require_mocap
 from harness.evaluation import pipeline
 from harness.evaluation.cache import stable_hash
 from harness.evaluation.runner import plan
-from harness.evaluation.scenario import parse_scenario, resolve_capture
+from harness.evaluation.loading import parse_scenario
+from harness.evaluation.scenario_captures import resolve_capture
 
 # Two subjects' walks, one subject's punches (two strikes of one take, the capture stream's take) and a run.
 MANIFEST = ("file,format,skeleton,subject,trial,class,start,end,fps\n"
