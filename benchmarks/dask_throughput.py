@@ -21,7 +21,7 @@ from dask.distributed import Client, LocalCluster
 
 from harness.evaluation import pipeline
 from harness.evaluation.runner import plan, run_scenario
-from harness.evaluation.scenario import load_scenario
+from harness.evaluation.loading import load_scenario
 
 TARGET = 0.85
 

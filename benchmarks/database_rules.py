@@ -41,7 +41,8 @@ from harness.engine.recognition import FEATURE_OUTLIER
 from harness.engine.variance_floor import FLOOR_SCALE, HUMAN_FLOOR_PATH, group_floor, read_human_floor
 from harness.evaluation.pipeline import test_motion, training_identity, training_motions
 from harness.evaluation.runner import plan
-from harness.evaluation.scenario import load_scenario, resolve_capture
+from harness.evaluation.loading import load_scenario
+from harness.evaluation.scenario_captures import resolve_capture
 from harness.motion.performer import CYCLIC
 from harness.motion.realism import calibration_split
 

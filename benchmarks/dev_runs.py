@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import os
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -19,7 +18,8 @@ def add_arguments(ap: argparse.ArgumentParser, seed: int | None = None) -> None:
     ap.add_argument("--limit", type=int, default=None, help="runs per condition")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--cache", default="results/cache")
-    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="engine settings to use instead")
+    ap.add_argument("--set", nargs="*", default=[], metavar="SECTION.FIELD=VALUE",
+                    help="engine settings to use instead (e.g. tracks.particles=200)")
     ap.add_argument("--mocap-dir", default=os.environ.get("HARNESS_MOCAP_DIR", "../shared/mocap/cmu"),
                     help="capture directory, for capture scenarios")
 
@@ -28,7 +28,8 @@ def selected(args: argparse.Namespace, pick: np.random.Generator | None = None) 
     """The planned runs ``args`` select (``add_arguments``); a run's ``seed`` tells runs of several seeds apart.
     With ``--limit``, the first runs of each condition, or with ``pick`` that many drawn from it (in key order)."""
     from harness.evaluation.runner import plan
-    from harness.evaluation.scenario import load_scenario, resolve_capture
+    from harness.evaluation.loading import load_scenario
+    from harness.evaluation.scenario_captures import resolve_capture
 
     os.environ["HARNESS_MOCAP_DIR"] = args.mocap_dir         # the workers resolve the capture set again
     scenario = resolve_capture(load_scenario(args.scenario), args.mocap_dir)
@@ -62,36 +63,11 @@ def map_runs(fn, runs: list, args: argparse.Namespace) -> list:
 
 
 def tracker_for(inputs, overrides: dict):
-    """The run's tracker with engine ``overrides`` applied."""
-    import dataclasses
+    """The run's tracker with engine ``overrides`` (``{section: {field: value}}``) applied: a new engine on the
+    run's database when there are any (the model's points may change)."""
+    from harness.engine import Tracker
 
     tracker = inputs.tracker()
-    if overrides:
-        tracker.config = dataclasses.replace(tracker.config, **overrides)
-        tracker.scorer = dataclasses.replace(tracker.scorer, config=tracker.config)
-    return tracker
-
-
-@dataclass(frozen=True)
-class TruePrimitive:
-    """What a benchmark that scores along a run's true path needs: the run's inputs (observation and truth), its
-    tracker (``overrides`` applied), a scorer, the true primitive's index and a recursion that believes only it."""
-
-    inputs: object
-    tracker: object
-    scorer: object
-    primitive: int
-    recognizer: object
-
-
-def true_primitive(run, overrides: dict) -> TruePrimitive:
-    from harness.engine.recognition import Recognizer
-    from harness.engine.scoring import Scorer
-    from harness.evaluation import pipeline
-
-    inputs = pipeline.run_inputs(run)
-    tracker = tracker_for(inputs, overrides)
-    model, cfg = tracker.model, tracker.config
-    c = list(model.db.classes_).index(run.test_class)
-    return TruePrimitive(inputs, tracker, Scorer(model, cfg), c,
-                         Recognizer(model.db, cfg.start_spread, cfg.prune).restrict([c]))
+    if not overrides:
+        return tracker
+    return Tracker(inputs.db, inputs.body, tracker.config.with_values(overrides), rng=tracker.rng)

@@ -28,7 +28,7 @@ from harness.scene import CameraSpec, MarkerSpec, ObservationSpec, OccluderSpec,
 from harness.scene.simulate import simulate
 
 # No pruning, no merging: the tracks spawned on the first frame live through the clip.
-_KEEP_TRACKS = {"track_prune_nats": 1e12, "track_merge_m": 0.0, "track_merge_deg": 0.0}
+_KEEP_TRACKS = {"tracks.prune_nats": 1e12, "tracks.merge_m": 0.0, "tracks.merge_deg": 0.0}
 
 
 def copies(db: MotionDatabase, n_classes: int) -> MotionDatabase:
@@ -80,16 +80,24 @@ def main() -> None:
                          ObservationSpec(noise_px=1.0))
         return simulate(motion, spec, np.random.default_rng(7), body)[0]
 
-    base = TrackerConfig(**_KEEP_TRACKS)
+    base = TrackerConfig.from_dict(_KEEP_TRACKS)
     default_clip = clip(100)
     sweeps = {
-        "particles": [(n, db, default_clip, replace(base, particles=n)) for n in (100, 200, 400, 800)],
+        "particles": [
+            (n, db, default_clip, base.with_values({"tracks": {"particles": n}})) for n in (100, 200, 400, 800)
+        ],
         "visible flows": [(m, db, clip(m), base) for m in (50, 100, 200, 400)],
-        "model points": [(p, db, default_clip, replace(base, model_points=p)) for p in (75, 150, 300)],
+        "model points": [(p, db, default_clip, base.with_values({"model": {"points": p}})) for p in (75, 150, 300)],
         "classes": [(c, copies(db, c), default_clip, base) for c in (5, 10, 20, 40)],
-        "tracks": [(k, db, default_clip, replace(base, class_tracks=False, track_turns=turns, twin_track=twin))
-                   for k, turns, twin in ((1, (), False), (2, (), True), (3, (90.0, -90.0), False),
-                                          (5, (90.0, 180.0, -90.0), True))],
+        "tracks": [
+            (k, db, default_clip, base.with_values({"spawn": {"per_class": False, "turns": turns, "twin": twin}}))
+            for k, turns, twin in (
+                (1, (), False),
+                (2, (), True),
+                (3, (90.0, -90.0), False),
+                (5, (90.0, 180.0, -90.0), True),
+            )
+        ],
     }
     print(f"{'sweep':14s} {'size':>6s} {'frame 1 ms':>11s} {'ms/frame':>9s} {'tracks':>7s}")
     summary = {}

@@ -56,8 +56,12 @@ from harness.observation import Observation
 db = MotionDatabase.load(sys.argv[1])
 sizes = {} if sys.argv[2] == "default" else {"particles": int(sys.argv[2])}
 sizes |= {} if sys.argv[3] == "default" else {"model_points": int(sys.argv[3])}
-tracker = Tracker(db, BodyModel.load(), TrackerConfig(**sizes, **json.loads(sys.argv[4])),
-                  rng=np.random.default_rng(1))
+if hasattr(TrackerConfig, "from_dict"):      # settings in sections (since issue 58)
+    named = {"particles": "tracks.particles", "model_points": "model.points"}
+    config = TrackerConfig.from_dict({named[k]: v for k, v in sizes.items()} | json.loads(sys.argv[4]))
+else:
+    config = TrackerConfig(**sizes, **json.loads(sys.argv[4]))
+tracker = Tracker(db, BodyModel.load(), config, rng=np.random.default_rng(1))
 clips = [Observation.load(path) for path in sys.argv[5:]]
 tracker.run(clips[0])        # the first clip compiles the kernels
 print("ready", flush=True)
@@ -227,7 +231,8 @@ def main() -> None:
                                                                    "('none' to skip it)")
     ap.add_argument("--repeats", type=int, default=3, help="rounds of the clips, both engines taking each "
                                                              "clip in turn, for the ratio")
-    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="engine settings of this engine")
+    ap.add_argument("--set", nargs="*", default=[], metavar="SECTION.FIELD=VALUE",
+                    help="engine settings of this engine")
     ap.add_argument("--profile", action="store_true", help="also split this engine's time into numba kernels, "
                                                             "MuJoCo and the Python (with numpy) around them")
     args = ap.parse_args()
@@ -248,14 +253,14 @@ def main() -> None:
             obs_paths.append(Path(tmp) / f"obs{i}.npz")
             obs.save(obs_paths[-1])
         t0 = time.perf_counter()
-        sizes = {} if args.particles is None else {"particles": args.particles}
-        sizes |= {} if args.points is None else {"model_points": args.points}
+        sizes = {} if args.particles is None else {"tracks.particles": args.particles}
+        sizes |= {} if args.points is None else {"model.points": args.points}
         settings = settings_from_strings(args.set)
-        tracker = Tracker(db, body, TrackerConfig(**sizes, **settings), rng=np.random.default_rng(1))
+        tracker = Tracker(db, body, TrackerConfig.from_dict(sizes | settings), rng=np.random.default_rng(1))
         print(f"machine: {_machine()}")
         print(f"database transform (once): {1e3 * (time.perf_counter() - t0):.0f} ms for "
-              f"{db.means_.shape[0] * db.means_.shape[1]} states x {tracker.config.model_points} points, "
-              f"{tracker.config.particles} particles")
+              f"{db.means_.shape[0] * db.means_.shape[1]} states x {tracker.config.model.points} points, "
+              f"{tracker.config.tracks.particles} particles")
         tracker.run(clips[0])
         total, causal, frames, parts, phases = 0.0, 0.0, 0, {}, {}
         for c, obs in zip(args.classes, clips[1:]):

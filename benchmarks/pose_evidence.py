@@ -19,7 +19,7 @@ plane instead of the camera's, is not the image's twin under an elevated camera)
 Then the causal chooser (``causal_choice``): with the true path and its alternatives known exactly, the heading
 error of reporting at every frame the path with the most evidence so far, per condition, for all five
 alternatives and for the turns and the twins apart, by the motion the flows have shown so far, and per class.
-``--set recognise_velocities=false`` scores the flows' joint likelihood instead of the velocities given the
+``--set likelihood.recognise_velocities=false`` scores the flows' joint likelihood instead of the velocities given the
 positions. For the twins misread, the truth's evidence margin over them.
 
 Then, for the first frames with flows, how much each frame tells the truth from each alternative (``print_early``).
@@ -39,7 +39,6 @@ the quarter and half turns above.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import time
 from functools import partial
 
@@ -57,21 +56,21 @@ def _one(job, shifts: tuple = (), turns: tuple = ()) -> dict:
     from harness.evaluation.metrics import heading_error_curve
     from harness.engine.model import EngineModel
     from harness.engine.track import turned, twin
-    from harness.engine.scoring import path_class_evidence, path_recognition
+    from harness.engine.scoring import Scorer, path_class_evidence, path_recognition
     from harness.evaluation import pipeline
     from harness.evaluation.scenario import tracker_config
 
     inputs = pipeline.run_inputs(run)
     obs, truth = inputs.obs, inputs.truth
-    tc = dataclasses.replace(tracker_config(run.config), **overrides)
-    model = EngineModel.build(inputs.db, inputs.body, tc.model_points, tc.model_seed)
+    tc = tracker_config(run.config).with_values(overrides)
+    scorer = Scorer(EngineModel.build(inputs.db, inputs.body, tc.model.points, tc.model.seed), tc.likelihood)
     pos, quat = truth.base_pos_cam, truth.base_quat_cam
     paths = {"truth": quat, "turn+90": turned(quat, np.pi / 2), "turn180": turned(quat, np.pi),
              "turn-90": turned(quat, -np.pi / 2), "twin": twin(quat),
              "twin_upright": np.array([twin(q[None], g)[0] for q, g in zip(quat, -truth.camera_rot[:, 2, :])])}
     evidence, recognised, per_frame = {}, {}, {}
     for name, q in paths.items():
-        per_frame[name], posterior = path_recognition(model, tc, obs, pos, q)
+        per_frame[name], posterior = path_recognition(scorer, tc.belief, obs, pos, q)
         evidence[name] = float(per_frame[name].sum())
         recognised[name] = bool(inputs.db.classes_[posterior[-1].argmax()] == run.test_class)
     # Each path's heading error at every frame, as evaluate measures it (every chooser reads these).
@@ -79,10 +78,13 @@ def _one(job, shifts: tuple = (), turns: tuple = ()) -> dict:
     margins = {}
     true_class = list(inputs.db.classes_).index(run.test_class)
     for shift in sorted({0.0, *shifts, *(-s for s in shifts)}) if shifts else ():
-        class_evidence = path_class_evidence(model, tc, obs, pos + np.array([shift / 100.0, 0.0, 0.0]), quat)
+        class_evidence = path_class_evidence(scorer, tc.belief, obs, pos + np.array([shift / 100.0, 0.0, 0.0]), quat)
         margins[shift] = float(class_evidence[true_class] - np.delete(class_evidence, true_class).max())
-    near = {a: evidence["truth"] - float(path_recognition(model, tc, obs, pos, turned(quat, np.deg2rad(a)))[0].sum())
-            for a in sorted({*turns, *(-t for t in turns)})}     # the truth's margin over the path turned by a
+    near = {
+        a: evidence["truth"]
+        - float(path_recognition(scorer, tc.belief, obs, pos, turned(quat, np.deg2rad(a)))[0].sum())
+        for a in sorted({*turns, *(-t for t in turns)})
+    }  # the truth's margin over the path turned by a
     first = int(np.argmax(obs.counts > 0))
     early = {a: (per_frame["truth"] - per_frame[a])[first:first + EARLY_FRAMES] for a in ALTERNATIVES}
     return {"key": run.key, "condition": run.condition_label, "class": run.test_class, **evidence,

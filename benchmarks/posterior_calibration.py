@@ -1,7 +1,7 @@
 """Fit the class posterior's calibration (temperature, floor) on development runs and score it.
 
     MUJOCO_GL=egl python benchmarks/posterior_calibration.py [--seed 101 102] [--amount 0.0 0.4] [--limit N]
-        [--jobs 2] [--rows rows.jsonl] [--check TEMPERATURE FLOOR] [--set KEY=VALUE ...]
+        [--jobs 2] [--rows rows.jsonl] [--check TEMPERATURE FLOOR] [--set SECTION.FIELD=VALUE ...]
 
 Runs the engine (the ``full`` method) on a scenario's runs (default: the default scenario on development seed
 101) and keeps each run's raw final log class posterior (``Estimate.raw_log_posterior``, before calibration)
@@ -81,8 +81,8 @@ def main() -> None:
     true = np.array([r["classes"].index(r["class"]) for r in rows])
     conditions = np.array([r["condition"] for r in rows])
     _table("raw", log_post, true, conditions, 1.0, 0.0)
-    cfg = TrackerConfig(**overrides)
-    _table("the engine's settings", log_post, true, conditions, cfg.posterior_temperature, cfg.posterior_floor)
+    belief = TrackerConfig().with_values(overrides).belief
+    _table("the engine's settings", log_post, true, conditions, belief.posterior_temperature, belief.posterior_floor)
     tau, eps = args.check if args.check else fit(log_post, true)
     _table("checked" if args.check else "fitted", log_post, true, conditions, tau, eps)
 
