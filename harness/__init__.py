@@ -17,7 +17,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 def _full_vector_width() -> None:
     """Compile numba's kernels for the CPU's full vector registers. LLVM's tuning for recent Intel cores
     prefers 256-bit vectors even where the CPU has 512-bit ones; the engine's flow likelihood is arithmetic on
-    contiguous doubles, measured 14% faster with 512-bit ones (docs/engine.md, "Speed"). It must be set before
+    contiguous doubles, measured 14% faster with 512-bit ones (docs/log/2026-12-05-speed-step-07.md). It must be set before
     numba is first imported; a user's own ``NUMBA_CPU_FEATURES`` wins, and CPUs without AVX-512 are left as
     they are."""
     if "NUMBA_CPU_FEATURES" in os.environ:

@@ -1,5 +1,5 @@
 """``benchmarks/database_rules.py``'s scoring of a capture with a posture offset per class (a measured and
-rejected alternative in docs/engine.md, "Database"): its forward-backward against hmmlearn's, and its offset
+rejected alternative in docs/log/2026-12-07-posture-offset.md): its forward-backward against hmmlearn's, and its offset
 integrated out against the closed form of the linear-Gaussian model it is exact for."""
 
 import sys

@@ -288,7 +288,7 @@ class ParticleTracks:
             self._frames[frame.index] = frame
             self._frames.pop(frame.index - self.memory, None)
         # The tracks per primitive ``start`` drew from this frame's weighing hold it already: weighed again, the
-        # first frame would count twice (docs/engine.md, "Spawning").
+        # first frame would count twice (docs/engine.md, "Pose tracks").
         if frame.has_flows and frame.index != self._drawn_at:
             reweight_many([t.cloud for t in tracks], self.log_likelihoods(frame, tracks))
         positions, quats, spreads = settled([t.cloud for t in tracks])

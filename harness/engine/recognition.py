@@ -138,7 +138,7 @@ class Recognizer:
 
 
 # The recursion's steps compiled: a track's belief is a few hundred numbers, and the same steps in numpy cost
-# 20-30 us a call in call overhead, once per track and frame (docs/engine.md, "Speed").
+# 20-30 us a call in call overhead, once per track and frame (docs/log/2026-12-05-speed-step-07.md).
 
 @numba.njit(cache=True)
 def _predicted(log_alpha, trans):
@@ -270,7 +270,7 @@ def _derived(log_alpha, start_states, log_prune):
 
 # The joint-space recognition's per-feature outlier share (``MotionDatabase.log_emissions``). Chosen on the
 # capture scenarios' development captures (``benchmarks/database_rules.py --outliers``): 163 of 195 right,
-# 0.03 and 0.1 one fewer, the plain Gaussian 152 (docs/engine.md, "Database").
+# 0.03 and 0.1 one fewer, the plain Gaussian 152 (docs/log/2026-12-03-feature-outlier-share.md).
 FEATURE_OUTLIER = 0.05
 
 

@@ -37,7 +37,7 @@ HUMAN_FLOOR_PATH = Path(__file__).with_name("human_floor.json")
 # (0.05 m/s)^2 and (0.1 rad/s)^2 for the base (the database's only floor before issue 24). It stays the floor of
 # features the held-out residuals cannot measure: the captures hold the neck's and head's twist constant.
 GROUP_FLOOR_STD = ((ANGLES, np.deg2rad(2.0)), (ANGLE_RATES, 0.3), (BASE_LINEAR, 0.05), (BASE_ANGULAR, 0.1))
-# The human floor's scale, chosen among 1, 2, 4 and 8 on development data (docs/engine.md, "Database"): on the
+# The human floor's scale, chosen among 1, 2, 4 and 8 on development data (docs/log/2026-12-03-variance-floor.md): on the
 # development captures' joint-space recognition (sim2real, mixed, leave-one-out, cross-subject) the four tie
 # within two demonstrations (76-78% mean), and on the procedural scenario's development runs (seed 101) the
 # recovery of the true-baselink method grows with the scale (MPJPE +3.7 mm at 1, +18 mm at 4). The table is

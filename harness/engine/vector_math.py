@@ -60,7 +60,7 @@ def exp_parts(x):
     ``2^k`` is built from its bits, ``(k + 1023) << 52``, with ``k``'s integer taken from the bits of ``k + 1.5 *
     2^52`` rather than by a conversion: CPUs without AVX-512 have no vector instruction that converts doubles
     to 64-bit integers, and the conversion, done one element at a time, cost the density loop 5% of its time
-    on an AMD Zen 3 (docs/engine.md, "Speed")."""
+    on an AMD Zen 3 (docs/log/2026-12-06-speed-step-11.md)."""
     k = np.floor(x * _INV_LN2 + 0.5)
     r = (x - k * _LN2_HI) - k * _LN2_LO
     r2 = r * r
