@@ -58,9 +58,9 @@ def write_atomic(path: str | Path, write: Callable[[IO[bytes]], None]) -> None:
         raise
 
 
-def save_npz_atomic(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
-    """``np.savez`` (no pickled objects) written atomically."""
-    write_atomic(path, lambda fh: np.savez(fh, **arrays))
+def save_npz_atomic(path: str | Path, arrays: dict[str, np.ndarray], compressed: bool = False) -> None:
+    """``np.savez`` (no pickled objects; ``compressed``: ``np.savez_compressed``) written atomically."""
+    write_atomic(path, lambda fh: (np.savez_compressed if compressed else np.savez)(fh, **arrays))
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:

@@ -320,19 +320,23 @@ PATH_CASES = {
     "name_dash": _scenario("name: -rf\n"),
     "name_cache": _scenario("name: cache\n"),
     "name_baseline": _scenario("name: baseline\n"),
-    "manifest_absolute": _scenario("name: x\ndatabase: {source: capture, manifest: /etc/passwd}\ntest: {split: all}\n"),
-    "manifest_parent": _scenario("name: x\ndatabase: {source: capture, manifest: ../outside/M.csv}\n"
-                                 "test: {split: all}\n"),
+    "manifest_absolute": _scenario("name: x\ndatabase: {source: captures, manifest: /etc/passwd}\n"
+                                   "test: {motions: captures, split: none}\n"),
+    "manifest_parent": _scenario("name: x\ndatabase: {source: captures, manifest: ../outside/M.csv}\n"
+                                 "test: {motions: captures, split: none}\n"),
+    "capture_dir_former_key": _scenario("name: x\ndatabase: {source: captures, capture_dir: a}\n"),
+    "split_former_value": _scenario("name: x\ntest: {split: cross_subject}\n"),
 }
 
 SWEEP_CASES = {
     "sweep_seed": _scenario("name: x\nsweep: {seed: [1, 2]}\n"),
-    "sweep_capture_dir": _scenario("name: x\nsweep: {database.capture_dir: [a, b]}\n"),
+    "sweep_capture_sets": _scenario("name: x\nsweep: {database.capture_sets: [[a], [b]]}\n"),
     "sweep_manifest": _scenario("name: x\nsweep: {database.manifest: [a.csv, b.csv]}\n"),
     "sweep_cross_field": _scenario("name: x\noccluders: {amount: 0.4}\nsweep: {occluders.preset: [pillar, none]}\n"),
     "sweep_cross_field_two_keys": _scenario("name: x\nsweep: {occluders.preset: [none, low_wall], "
                                             "occluders.amount: [0.0, 0.3]}\n"),
-    "sweep_split_per_condition": _scenario("name: x\nsweep: {test.split: [heldout, all]}\n"),
+    "sweep_split_per_condition": _scenario("name: x\ndatabase: {source: captures}\n"
+                                           "sweep: {test.motions: [captures, procedural]}\n"),
     "sweep_1001_values": _scenario("name: x\nsweep: {markers.count: " + _sweep_values(1001) + "}\n"),
     "sweep_too_many_conditions": _scenario("name: x\nsweep: {markers.count: " + _sweep_values(40)
                                            + ", camera.distance: " + _sweep_values(40) + "}\n"),
@@ -637,8 +641,8 @@ def _capture(rows: str, setup=None, manifest: str = "MANIFEST.csv"):
         else:
             (capture / manifest).write_text(CAPTURE_HEADER + rows)
         path = tmp_path / "capture.yaml"
-        path.write_text(f"name: x\ndatabase: {{source: capture, capture_dir: {capture}, manifest: {manifest}}}\n"
-                        f"test: {{split: all}}\n")
+        path.write_text(f"name: x\ndatabase: {{source: captures, capture_dirs: [{capture}], manifest: {manifest}}}\n"
+                        f"test: {{motions: captures, split: none}}\n")
         return ["evaluate", str(path), "--results", str(tmp_path / "results")], capture / manifest
     return build
 
@@ -681,8 +685,8 @@ CAPTURE_CASES = {
     "row_is_300mb": _capture("", _huge_row),
     "row_missing_at_load": _capture("absent.bvh,bvh,,1,1,walk,0,10,120\n"),
     "capture_dir_missing": lambda tmp_path, ctx: (
-        (tmp_path / "c.yaml").write_text(f"name: x\ndatabase: {{source: capture, capture_dir: {tmp_path}/none}}\n"
-                                         "test: {split: all}\n"),
+        (tmp_path / "c.yaml").write_text(f"name: x\ndatabase: {{source: captures, capture_dirs: [{tmp_path}/none]}}\n"
+                                         "test: {motions: captures, split: none}\n"),
         (["evaluate", str(tmp_path / "c.yaml"), "--results", str(tmp_path / "r")], tmp_path / "c.yaml"))[1],
 }
 

@@ -164,7 +164,7 @@ def test_test_left_outside_zero_to_one_is_refused(left):
 
 def test_test_left_is_for_procedural_test_performances_only():
     with pytest.raises(ScenarioError, match=r"test\.left: only procedural test performances"):
-        parse_scenario({**TINY, "test": {"left": 0.5, "split": "captures"}})
+        parse_scenario({**TINY, "test": {"left": 0.5, "motions": "captures"}})
 
 
 def test_test_left_one_makes_every_test_performance_left_sided(tmp_path):

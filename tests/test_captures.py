@@ -92,7 +92,7 @@ def test_one_short_row_per_format(tmp_path, body):
     assert [m.label for m in motions] == ["run", "walk", "walk", "walk"]
     assert [m.subject for m in motions] == ["9", "131", "2", "2"]
     assert len({m.demo for m in motions}) == 4
-    assert motions[0].source == "bvh:09_01.bvh[1:41]"
+    assert (motions[0].source, motions[0].demo) == (directory.resolve().name, "09_01:1-41")
     # 40 frames at 120 fps span 39/120 s: 10 frames at 30 fps.
     assert [m.n_frames for m in motions] == [10, 10, 11, 11] and all(m.fps == 30.0 for m in motions)
     for m in motions:

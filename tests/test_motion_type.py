@@ -50,14 +50,25 @@ def test_resample_keeps_the_trajectory(body, rng):
 
 
 def test_save_load_is_exact(tmp_path, body, rng):
-    m = _smooth_motion(body, rng)
+    m = _smooth_motion(body, rng).replace(style="tired", source="studio")
     m.save(tmp_path / "m.npz")
     back = Motion.load(tmp_path / "m.npz")
     assert np.array_equal(back.qpos, m.qpos)
-    assert (back.fps, back.label, back.subject, back.demo, back.source) == (m.fps, m.label, m.subject,
-                                                                          m.demo, m.source)
+    assert (back.fps, back.label, back.subject, back.demo, back.source, back.style) == (
+        m.fps, m.label, m.subject, m.demo, m.source, m.style)
     with np.load(tmp_path / "m.npz", allow_pickle=False) as z:
-        assert set(z.files) == {"qpos", "fps", "label", "subject", "demo", "source"}
+        assert set(z.files) == {"qpos", "fps", "label", "subject", "demo", "source", "style"}
+
+
+def test_a_single_precision_motion_loads_within_its_rounding(tmp_path, body, rng):
+    """The capture library keeps float32, compressed: loaded, every value within float32's rounding of the
+    original and every base quaternion of unit length again (``Motion`` refuses one that is not)."""
+    m = _smooth_motion(body, rng)
+    m.save(tmp_path / "m.npz", dtype=np.float32, compressed=True)
+    back = Motion.load(tmp_path / "m.npz")
+    assert back.qpos.dtype == np.float64
+    np.testing.assert_allclose(back.qpos, m.qpos, rtol=2e-7, atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(back.qpos[:, 3:7], axis=1), 1.0, atol=1e-12)
 
 
 def test_bad_motions(body):

@@ -52,7 +52,7 @@ def _error(raw) -> str:
             {"name": "x", "sweep": {"engine.particles": [10]}},
             "s.yaml: sweep['engine.particles']: moved to engine.tracks.particles",
         ),
-        ({"name": "x", "test": {"split": "all"}}, "s.yaml: test.split: 'all' does not fit database.source"),
+        ({"name": "x", "test": {"split": "all"}}, "s.yaml: test.split: 'all' is now test.split: none"),
         (
             {"name": "x", "methods": ["full", "best"]},
             "s.yaml: methods[1]: unknown method 'best' (valid: full, full_smoothed, gt_base",
@@ -67,7 +67,7 @@ def test_errors_name_the_key_and_what_was_expected(raw, expected):
 def test_a_five_line_scenario_gets_the_documented_defaults():
     s = parse_scenario({"name": "small", "sweep": {"engine.tracks.particles": [50, 100]}})
     assert s.classes == PROCEDURAL_CLASSES and s.database.train_demos == 8 and s.database.states == 20
-    assert s.database.fps == 30.0 and s.test.demos_per_class == 2 and s.test.split == "heldout"
+    assert s.database.fps == 30.0 and s.test.demos_per_class == 2 and s.test.motions == "procedural"
     # A swept key's section holds the first condition's value (its unswept value is never run).
     assert (s.engine.tracks.particles, s.engine.model.points, s.engine.model.seed, s.engine.spawn.distance) == \
         (50, 120, 7, (2.0, 8.0))
@@ -119,19 +119,27 @@ def test_shipped_scenarios_validate(path):
 
 def test_capture_classes_are_checked_against_the_manifest():
     mocap = require_mocap()
-    s = parse_scenario({"name": "m", "database": {"source": "capture", "classes": ["walk", "wlak"]},
-                        "test": {"split": "all"}})
+    s = parse_scenario({"name": "m", "database": {"source": "captures", "classes": ["walk", "wlak"]},
+                        "test": {"motions": "captures", "split": "none"}})
     with pytest.raises(ScenarioError, match=r"database.classes\[1\]: unknown class 'wlak' \(valid: "):
         resolve_capture(s, mocap)
-    ok = resolve_capture(parse_scenario({"name": "m", "database": {"source": "capture"},
-                                         "test": {"split": "all"}}), mocap)
-    assert "walk" in ok.database.classes and Path(ok.database.capture_dir) == mocap.resolve()
+    ok = resolve_capture(parse_scenario({"name": "m", "database": {"source": "captures"},
+                                         "test": {"motions": "captures", "split": "none"}}), mocap)
+    assert "walk" in ok.database.classes and ok.database.capture_dirs == (str(mocap.resolve()),)
+    assert ok.database.capture_sets == (mocap.resolve().name,)
 
 
-def test_capture_dir_missing_is_named(monkeypatch):
+def test_no_capture_set_is_named(monkeypatch, tmp_path):
+    from harness.evaluation import scenario_captures
+
     monkeypatch.delenv("HARNESS_MOCAP_DIR", raising=False)
-    s = parse_scenario({"name": "m", "database": {"source": "capture"}, "test": {"split": "all"}})
-    with pytest.raises(ScenarioError, match=r"database.capture_dir: not set \(give --mocap-dir DIR"):
+    monkeypatch.setattr(scenario_captures, "LIBRARY", tmp_path / "no_library")
+    s = parse_scenario({"name": "m", "database": {"source": "captures"}, "test": {"motions": "captures"}})
+    with pytest.raises(ScenarioError, match=r"database.capture_sets: no capture set \(give --mocap-dir DIR"):
+        resolve_capture(s)
+    s = parse_scenario({"name": "m", "database": {"source": "captures", "capture_sets": ["cmu"]},
+                        "test": {"motions": "captures"}})
+    with pytest.raises(ScenarioError, match=r"database.capture_sets\[0\]: no capture set 'cmu'"):
         resolve_capture(s)
 
 
@@ -212,16 +220,18 @@ def test_the_code_version_follows_the_shipped_tables_and_not_the_result_formatti
     assert seen[0] != seen[1] == seen[2]
 
 
-def test_with_captures_needs_a_capture_test_split():
-    with pytest.raises(ScenarioError, match=r"database.with_captures: needs test.split 'captures'"):
+def test_the_keys_of_before_the_capture_sets_are_refused_with_their_new_form():
+    with pytest.raises(ScenarioError, match=r"w.yaml: database.with_captures: no longer a key: database.source: both"):
         parse_scenario({"name": "w", "database": {"with_captures": True}}, "w.yaml")
-    s = parse_scenario({"name": "w", "database": {"with_captures": True}, "test": {"split": "captures"}})
-    assert s.database.with_captures
+    with pytest.raises(ScenarioError, match=r"w.yaml: test.split: 'leave_one_out' is now test.split: row"):
+        parse_scenario({"name": "w", "test": {"split": "leave_one_out"}}, "w.yaml")
+    with pytest.raises(ScenarioError, match=r"w.yaml: test.motions: 'procedural' tests procedural demonstrations"):
+        parse_scenario({"name": "w", "database": {"source": "captures"}}, "w.yaml")
 
 
-def test_with_captures_trains_on_the_other_subjects_captures(tmp_path, monkeypatch):
-    """The mixed database's training set: the procedural demos plus every capture demo whose subject is not
-    the test motion's (two rows of subject 2 and one of subject 9 here)."""
+def test_both_sources_train_on_the_other_subjects_captures(tmp_path, monkeypatch):
+    """A database of both sources: the procedural demos plus every capture demo whose subject is not the
+    capture test motion's (two rows of subject 2 and one of subject 9 here)."""
     import numpy as np
 
     from harness.evaluation import pipeline
@@ -233,11 +243,11 @@ def test_with_captures_trains_on_the_other_subjects_captures(tmp_path, monkeypat
     (tmp_path / "MANIFEST.csv").write_text(
         "file,format,skeleton,subject,trial,class,start,end,fps\n02_01.amc,amc,02.asf,2,1,walk,0,41,120\n"
         "02_01.amc,amc,02.asf,2,1,walk,41,82,120\n09_01.bvh,bvh,,9,1,run,1,41,120\n")
-    s = resolve_capture(parse_scenario({"name": "w", "database": {"with_captures": True, "train_demos": 1,
+    s = resolve_capture(parse_scenario({"name": "w", "database": {"source": "both", "train_demos": 1,
                                                                   "classes": ["walk", "run"]},
-                                        "test": {"split": "captures"}}), tmp_path)
+                                        "test": {"motions": "captures", "split": "subject"}}), tmp_path)
     test = Motion(qpos=np.tile(np.r_[0, 0, 1, 1, 0, 0, 0, np.zeros(50)], (2, 1)), fps=30.0, label="run",
-                  subject="9")
+                  subject="9", source=tmp_path.name)
     pipeline.clear_caches()
     motions = pipeline.training_motions(s, test)
     assert [(m.source == "procedural", m.label, m.subject) for m in motions] == [
@@ -271,7 +281,7 @@ def test_yaml_anchors_and_merge_keys_still_work(tmp_path):
 
 def test_capture_classes_are_checked_in_every_condition(tmp_path):
     mocap = require_mocap()
-    s = parse_scenario({"name": "m", "database": {"source": "capture"}, "test": {"split": "all"},
+    s = parse_scenario({"name": "m", "database": {"source": "captures"}, "test": {"motions": "captures"},
                         "sweep": {"database.classes": [["walk"], ["walk", "wlak"]]}})
     with pytest.raises(ScenarioError, match=r"s.yaml: database.classes\[1\]: unknown class 'wlak' .*"
                                             r"\(condition database.classes="):

@@ -18,12 +18,11 @@ TINY = {"name": "tiny_stream", "seed": 3, "database": {"classes": ["walk", "squa
 
 
 @pytest.mark.parametrize("raw, match", [
-    ({"test": {"stream": {"takes": ["13_29"]}}}, r"test.stream.takes: capture takes need database.source"),
-    ({"test": {"split": "captures", "stream": {}}}, r"test.split: streams of a procedural database"),
-    ({"database": {"source": "capture"}, "test": {"split": "leave_one_out", "stream": {}}},
-     r"test.stream.takes: a capture stream scenario lists its takes"),
-    ({"database": {"source": "capture"}, "test": {"split": "all", "stream": {"takes": ["13_29"]}}},
-     r"test.split: a capture stream is tested against a database trained without its take"),
+    ({"test": {"stream": {"takes": ["13_29"]}}}, r"test.stream.takes: a capture take is tested against a database"),
+    ({"test": {"motions": "captures", "stream": {}}}, r"test.stream: procedural streams are performed by held-out"),
+    ({"database": {"source": "captures"}, "test": {"motions": "captures", "split": "none",
+                                                     "stream": {"takes": ["13_29"]}}},
+     r"test.stream.takes: a capture take is tested against a database of the capture rows without its own"),
     ({"test": {"stream": {"primitives": [1, 3]}}}, r"test.stream.primitives: must be \[min, max\]"),
     ({"test": {"stream": {"count": 0}}}, r"test.stream.count"),
 ])

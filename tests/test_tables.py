@@ -215,20 +215,28 @@ def test_heading_over_time_is_the_median_of_the_stored_curves(rows):
     assert cell["q25"] <= cell["heading_err_median_deg"] <= cell["q75"] and cell["runs"] == len(g)
 
 
-def test_a_capture_report_says_which_classes_each_condition_tested():
-    """A cross-subject condition that tested walk and kick of a database with squat too: the report names the
-    tested classes with their runs and the one left out, and prints each confusion matrix as a table."""
-    from harness.evaluation.report import _capture_sections
-
-    scenario = parse_scenario({"name": "x", "database": {"source": "capture", "classes": ["walk", "kick", "squat"]},
-                               "test": {"split": "cross_subject"}, "methods": ["joint_space"]})
+def test_open_set_rows_are_in_no_accuracy_but_their_own_table(tmp_path):
+    """Two known runs (one right) and an open-set run answered walk with 0.9: the headline's accuracy is 1/2
+    over the two known runs, the open-set table has the third with its answer and confidence, and a second test
+    set splits every condition by set."""
+    post = {"walk": 0.9, "kick": 0.1}
     runs = pd.DataFrame({"run_key": ["a", "b", "c"], "condition": "base", "method": "joint_space",
-                         "class_true": ["walk", "walk", "kick"], "class_pred": ["walk", "kick", "kick"],
-                         "correct": [1, 0, 1]})
-    conf = tables.confusion(runs, ["walk", "kick", "squat"])
-    text = "\n".join(_capture_sections(scenario, runs, {"_confusion_matrices": conf}))
-    assert "`base`: walk (2), kick (1); not tested: squat (performed by one subject only)" in text
-    assert "| walk | 1 | 1 | 0 |" in text and "Confusion: `base`, `joint_space`" in text
+                         "source": ["cmu", "bandai", "bandai"], "style": ["", "tired", "tired"],
+                         "class_true": ["walk", "kick", "other"], "class_pred": ["walk", "walk", "walk"],
+                         "correct": [1, 0, float("nan")], "open_set": [False, False, True],
+                         "confidence": [0.8, 0.6, 0.9], "posterior_final": [post, post, post],
+                         "frame_accuracy": [1.0, 0.0, float("nan")], "time_to_correct_s": [0.1, float("nan"),
+                                                                                          float("nan")],
+                         "log_p_true": [-0.2, -2.3, float("nan")], "accuracy_curve": [[1] * 10, [0] * 10, []],
+                         "n_frames": 30, "ms_per_frame": 1.0})
+    out = tables.write_tables(runs, tmp_path, [], ["walk", "kick"], n_boot=50)
+    assert list(out["headline"]["condition"]) == ["base | bandai", "base | cmu"] or \
+        list(out["headline"]["condition"]) == ["base | cmu", "base | bandai"]
+    assert out["open_set"].iloc[0][["class_true", "runs", "answers", "confidence"]].tolist() == [
+        "other", 1, "walk 1", 0.9]
+    assert out["by_source"].set_index("source")["right"].to_dict() == {"cmu": 1, "bandai": 0}
+    assert out["by_style"].set_index("style")["runs"].to_dict() == {"": 1, "tired": 1}
+    assert tables.pooled_metrics(tables.known_and_open_set(runs)[0])["joint_space/correct"] == 0.5
 
 
 def test_heading_spread_against_a_built_case(tmp_path):

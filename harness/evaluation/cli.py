@@ -19,8 +19,9 @@ MAX_JOBS = 256          # local worker processes; more is a typo (each holds a f
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--results", default=DEFAULT_RESULTS, metavar="DIR",
                    help="results root; each scenario writes DIR/<name>/ (default: results)")
-    p.add_argument("--mocap-dir", default=None, metavar="DIR",
-                   help="capture directory for capture scenarios (default: database.capture_dir or $HARNESS_MOCAP_DIR)")
+    p.add_argument("--mocap-dir", action="append", default=None, metavar="DIR",
+                   help="a capture set's directory (repeatable; each named by its directory; default: "
+                        "database.capture_dirs, $HARNESS_MOCAP_DIR, then the repository's capture library)")
 
 
 def _running(p: argparse.ArgumentParser) -> None:

@@ -45,7 +45,7 @@ def run_frames(config) -> int | None:
     """An upper bound of a run's frames for a condition (a ``Scenario``), None for captures."""
     fps = float(config.database.fps)
     stream = config.test.stream
-    if config.database.source == "capture" or config.test.split == "captures":
+    if config.test.captures or (stream is not None and stream.takes is not None):
         return None
     if stream is not None and stream.takes is None:
         return int(math.ceil(stream.primitives[1] * (PRIMITIVE_S_BOUND + stream.transition_s[1]) * fps)) + 1
@@ -70,7 +70,7 @@ def run_bytes(config) -> dict[str, int]:
         "open_region": 24 * math.ceil(cam.width / cell) * math.ceil(cam.height / cell),
         "rendered": RENDER_PIXEL_BYTES * cam.width * cam.height if obs.mode == "rendered" else 0,
     }
-    if config.database.source == "procedural":
+    if config.database.learns_procedural:
         train_frames = n_classes * config.database.train_demos * (int(PRIMITIVE_S_BOUND * config.database.fps) + 1)
         out["training"] = TRAINING_BYTES * train_frames * (FEATURES + config.database.states)
     return out

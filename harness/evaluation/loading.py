@@ -140,7 +140,7 @@ def _runs_per_condition(cfg: Scenario) -> int | None:
     """Test motions of a condition when known at load (procedural and streams; captures: after resolving)."""
     if cfg.test.stream is not None:
         return len(cfg.test.stream.takes) if cfg.test.stream.takes is not None else cfg.test.stream.count
-    if cfg.database.source == "procedural" and cfg.test.split == "heldout":
+    if cfg.test.motions == "procedural":
         return len(cfg.classes) * cfg.test.demos_per_class
     return None
 

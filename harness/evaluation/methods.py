@@ -92,6 +92,12 @@ class RunInputs:
     def recognition_columns(self) -> tuple[str, ...]:
         return RECOGNITION_COLUMNS if self.labels is None else STREAM_RECOGNITION_COLUMNS
 
+    @property
+    def open_set(self) -> bool:
+        """Whether the test motion is of no class the database has (a capture row of ``other``, say): scored
+        for what each method answered and how sure it was, never in an accuracy."""
+        return self.labels is None and self.label not in self.classes
+
     @cached_property
     def true_joints(self) -> tuple[np.ndarray, np.ndarray]:
         """The subject's true joint centres ``(T, J, 3)`` in the camera frame and in its base frame, computed
@@ -206,9 +212,20 @@ def stream_recognition_scores(post: np.ndarray, classes, labels: np.ndarray, fps
     return stream_scores(recognised, labels, fps) | {"segments_pred": segment_list(recognised)}
 
 
+def open_set_scores(post: np.ndarray, classes) -> dict:
+    """Recognition columns of a motion of no known class: what was answered and how surely; the columns that
+    need a true class stay empty."""
+    final = np.asarray(post, dtype=float)[-1]
+    return not_produced(RECOGNITION_COLUMNS) | {
+        "class_pred": str(classes[int(np.argmax(final))]), "confidence": float(final.max()),
+        "posterior_final": {str(c): float(p) for c, p in zip(classes, final)}}
+
+
 def _recognition(inputs: RunInputs, post: np.ndarray, fps: float) -> dict:
     if inputs.labels is not None:
         return stream_recognition_scores(post, inputs.classes, inputs.labels, fps)
+    if inputs.open_set:
+        return open_set_scores(post, inputs.classes)
     return recognition_scores(post, inputs.classes, inputs.label, fps)
 
 

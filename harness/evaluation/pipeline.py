@@ -31,7 +31,7 @@ from harness.body import nominal_body
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
 from harness.evaluation.cache import cached, path_for_key
 from harness.evaluation.methods import METHODS, EngineRuns, RunInputs, score, segment_list
-from harness.evaluation.runner import RunError, RunSpec
+from harness.evaluation.runner import PROCEDURAL, RunError, RunSpec
 from harness.evaluation.scenario import Scenario, scene_spec, tracker_config
 from harness.evaluation.viewing import viewing_columns
 from harness.motion import Motion
@@ -47,17 +47,29 @@ DATABASE_FORMAT = 2
 
 # --- motions --------------------------------------------------------------------------------------------
 
-@lru_cache(maxsize=4)
-def _capture_set(capture_dir: str, manifest: str, fps: float) -> tuple[tuple, tuple[Motion, ...]]:
-    """Manifest rows and one retargeted motion per row, in manifest order."""
-    from harness.motion.captures import read_manifest, retarget_rows
+@lru_cache(maxsize=8)
+def _capture_motions(capture_dir: str, manifest: str, fps: float) -> tuple[Motion, ...]:
+    """One motion per manifest row of a capture set, in manifest order (``npz`` rows loaded, others retargeted)."""
+    from harness.motion.captures import read_manifest, row_motions
 
-    rows = read_manifest(Path(capture_dir) / manifest)
-    return tuple(rows), tuple(m for m, _ in retarget_rows(capture_dir, rows, fps, nominal_body()))
+    rows = read_manifest(Path(capture_dir) / manifest, name=Path(capture_dir).name)
+    return tuple(row_motions(capture_dir, rows, fps, nominal_body()))
 
 
-def _captures(cfg: Scenario) -> tuple[tuple, tuple[Motion, ...]]:
-    return _capture_set(str(cfg.database.capture_dir), cfg.database.manifest, float(cfg.database.fps))
+def _captures(cfg: Scenario) -> tuple[Motion, ...]:
+    """Every capture motion of the scenario, set by set (the order of ``capture_splits.capture_rows``)."""
+    return tuple(m for d in cfg.database.capture_dirs or ()
+                 for m in _capture_motions(d, cfg.database.manifest, float(cfg.database.fps)))
+
+
+def test_window(motion: Motion, window_s: float | None) -> Motion:
+    """A capture test motion cut to its middle ``window_s`` seconds (``test.window_s``; None or a shorter motion:
+    itself)."""
+    if window_s is None or motion.duration <= window_s:
+        return motion
+    n = int(round(window_s * motion.fps)) + 1
+    start = (motion.n_frames - n) // 2
+    return motion.slice(start, start + n)
 
 
 @lru_cache(maxsize=4)
@@ -78,7 +90,7 @@ def test_stream(run: RunSpec) -> Stream | None:
     if stream is None:
         return None
     if stream.takes is not None:
-        return _capture_stream(str(cfg.database.capture_dir), cfg.database.manifest, stream.takes[run.test_demo],
+        return _capture_stream(cfg.database.capture_dirs[0], cfg.database.manifest, stream.takes[run.test_demo],
                                float(cfg.database.fps))
     return procedural_stream(named_generator(run.seed, "motion"), classes=cfg.classes, primitives=stream.primitives,
                              transition_s=stream.transition_s, fps=cfg.database.fps,
@@ -91,52 +103,50 @@ def test_motion(run: RunSpec) -> Motion:
     cfg = run.config
     if cfg.test.stream is not None:
         return test_stream(run).motion
-    if cfg.database.source == "capture" or cfg.test.split == "captures":
-        from harness.motion.captures import demos_by_class
+    if run.test_source != PROCEDURAL:
+        from harness.evaluation.capture_splits import capture_rows, row_index
 
-        rows, motions = _captures(cfg)
-        demos = demos_by_class(list(rows)).get(run.test_class, [])
+        demos = row_index(capture_rows(cfg)).get((run.test_source, run.test_class), [])
         if run.test_demo >= len(demos):
-            raise RunError(f"run {run.key}: class {run.test_class!r} has {len(demos)} capture demos")
-        return motions[demos[run.test_demo]]
+            raise RunError(f"run {run.key}: set {run.test_source!r} has {len(demos)} rows of {run.test_class!r}")
+        return test_window(_captures(cfg)[demos[run.test_demo]], cfg.test.window_s)
     return demonstrations(run.test_class, 1, named_generator(run.seed, "motion"), fps=cfg.database.fps,
                           subject=TEST_SUBJECT_OFFSET + run.test_demo, body=nominal_body(), left=cfg.test.left)[0]
 
 
 def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
     """What trains the database of a run testing ``test`` (None: the scenario's whole training set); the one
-    place of the exclusion rules.
+    place of the exclusion rules, with ``capture_splits``.
 
-    Procedural: ``performer.training_set`` (subjects never used for tests), plus (with
-    ``database.with_captures``) every capture demo of another subject than the test motion's. Capture: every
-    manifest demo of the scenario's classes except the test demo (leave_one_out) or except the test subject's
-    demos (cross_subject); for a capture stream, except every row of its take."""
+    Procedural demonstrations (``database.source`` procedural or both): ``performer.training_set``, subjects
+    never used for tests. Capture rows (captures or both): every row of the database's classes (never
+    ``other``) but those of a capture test motion's group under ``test.split`` (``capture_splits.holds_out``);
+    for a capture stream, every row of its take. Only the scenario's classes are learned."""
+    from harness.evaluation.capture_splits import holds_out
+
     db = cfg.database
-    if db.source == "capture":
-        motions = [m for m in _captures(cfg)[1] if m.label in cfg.classes]
+    out = []
+    if db.learns_procedural:
+        out += list(_procedural_training(tuple(cfg.classes), db.train_demos, db.seed, float(db.fps)))
+    if db.learns_captures:
+        motions = [m for m in _captures(cfg) if m.label in cfg.classes]
         if test is not None and cfg.test.stream is not None:
             # A capture stream is a whole take: none of its rows trains the database.
             take = test.demo.split(":")[0]
             motions = [m for m in motions if m.demo.split(":")[0] != take]
-        elif test is not None and cfg.test.split == "leave_one_out":
-            motions = [m for m in motions if not (m.demo == test.demo and m.label == test.label)]
-        elif test is not None and cfg.test.split == "cross_subject":
-            motions = [m for m in motions if m.subject != test.subject]
-        return motions
-    out = list(_procedural_training(tuple(cfg.classes), db.train_demos, db.seed, float(db.fps)))
-    if db.with_captures:
-        out += [m for m in _captures(cfg)[1]
-                if m.label in cfg.classes and (test is None or m.subject != test.subject)]
+        elif test is not None and test.source != PROCEDURAL:
+            motions = [m for m in motions if not holds_out(test, m, cfg.test.split)]
+        out += motions
     return out
 
 
 def training_identity(motion: Motion) -> dict:
-    """What tells one training motion from any other: its source (a capture's file and frame range), class,
-    subject, demo, length, frame rate and a hash of its configurations (which also changes when the file behind
-    a capture, its retargeting or the performer changes)."""
+    """What tells one training motion from any other: its source (procedural or the capture set), class,
+    subject, style, demo (a capture's file and frame range), length, frame rate and a hash of its configurations
+    (which also changes when the file behind a capture, its retargeting or the performer changes)."""
     digest = hashlib.sha256(np.ascontiguousarray(motion.qpos, dtype=float).tobytes()).hexdigest()[:16]
-    return {"source": motion.source, "label": motion.label, "subject": str(motion.subject), "demo": str(motion.demo),
-            "frames": int(motion.n_frames), "fps": float(motion.fps), "qpos_sha256": digest}
+    return {"source": motion.source, "label": motion.label, "subject": str(motion.subject), "style": motion.style,
+            "demo": str(motion.demo), "frames": int(motion.n_frames), "fps": float(motion.fps), "qpos_sha256": digest}
 
 
 def database_key(cfg: Scenario, training: list[Motion]) -> dict:
@@ -181,7 +191,7 @@ def fresh_tracker(database_path: str, config: TrackerConfig, rng: np.random.Gene
 
 def clear_caches() -> None:
     """Forget every cached value (tests use it to run a run as if alone in a new process)."""
-    for f in (nominal_body, _capture_set, _procedural_training, _capture_stream, _stored_database, _prototype):
+    for f in (nominal_body, _capture_motions, _procedural_training, _capture_stream, _stored_database, _prototype):
         f.cache_clear()
 
 
@@ -199,15 +209,15 @@ def run_inputs(run: RunSpec) -> RunInputs:
     motion = test_motion(run) if stream is None else stream.motion
     db, db_path = database(cfg, motion, run.cache_dir)
     labels = None if stream is None else stream.labels
-    missing = sorted(set(labels) - set(db.classes_) - {TRANSITION}) if stream is not None else (
-        [] if run.test_class in db.classes_ else [run.test_class])
-    if missing:
+    missing = (sorted(set(labels) - set(db.classes_) - {TRANSITION}) if stream is not None
+               else [] if run.test_class in db.classes_ or run.test_class not in cfg.classes else [run.test_class])
+    if missing:     # a class of the scenario's is not in this run's database (a capture row of no other group)
         raise RunError(f"run {run.key}: class {missing[0]!r} has no training demonstration in this split")
     scene_rng = named_generator(run.seed, "scene")
     spec = scene_spec(cfg, scene_rng)
     obs, truth = simulate(motion, spec, scene_rng, nominal_body())
     subject = nominal_body() if np.all(truth.segment_scale == 1.0) else nominal_body().scaled(truth.segment_scale)
-    observed = Motion(truth.qpos, motion.fps, motion.label, motion.subject, motion.demo, motion.source)
+    observed = motion.replace(qpos=truth.qpos)
     tc = tracker_config(cfg)
     return RunInputs(key=run.key, label=run.test_class, classes=tuple(db.classes_), body=nominal_body(),
                      subject=subject, db=db, motion=observed, obs=obs, truth=truth,
@@ -218,7 +228,8 @@ def run_inputs(run: RunSpec) -> RunInputs:
 def run_one(run: RunSpec) -> list[dict]:
     inputs = run_inputs(run)
     obs, truth = inputs.obs, inputs.truth
-    common = {"class_true": run.test_class, "n_frames": len(obs), "mean_flows": float(obs.counts[1:].mean()),
+    common = {"class_true": run.test_class, "style": inputs.motion.style, "open_set": inputs.open_set,
+              "n_frames": len(obs), "mean_flows": float(obs.counts[1:].mean()),
               "self_occlusion": float(truth.self_fraction.mean()),
               "obstacle_occlusion": float(truth.obstacle_fraction.mean())}
     common |= viewing_columns(inputs.scene, truth)         # where the camera stood: the spec the run drew

@@ -14,7 +14,7 @@ from harness.evaluation.calibration import CONFIDENT, ECE_BINS, NLL_FLOOR
 from harness.evaluation.plots import write_plots
 from harness.evaluation.runner import load_rows
 from harness.evaluation.scenario import Scenario, scenario_hash
-from harness.evaluation.tables import is_stream, markdown, recognising, write_tables
+from harness.evaluation.tables import by_test_set, is_stream, known_and_open_set, markdown, recognising, write_tables
 from harness.io import write_text_atomic
 
 
@@ -24,7 +24,7 @@ def swept_keys(scenario: Scenario) -> list[str]:
 
 def classes_of(scenario: Scenario, rows: pd.DataFrame) -> list[str]:
     """The class order of tables and plots: the scenario's classes, then any other label seen in the rows."""
-    listed = list(scenario.database.classes or (scenario.classes if scenario.database.source == "procedural" else ()))
+    listed = list(scenario.classes)
     seen = sorted(set(rows.get("class_true", [])) - set(listed)) if len(rows) else []
     return listed + seen
 
@@ -54,7 +54,8 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
         write_text_atomic(path, text)
         return path
     tables = write_tables(rows, results_dir, swept, classes, seed=scenario.seed)
-    figures = write_plots(rows, results_dir, swept, classes, scenario.database.fps) if plots else []
+    known = by_test_set(known_and_open_set(rows)[0])
+    figures = write_plots(known, results_dir, swept, classes, scenario.database.fps) if plots else []
     n_runs = rows["run_key"].nunique()
     if is_stream(rows):
         return _stream_report(scenario, results_dir, rows, tables, figures, digest)
@@ -64,7 +65,7 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
         f"{n_runs} runs ({rows['condition'].nunique()} conditions x {scenario.repeats} repeats x test motions), "
         f"methods: {', '.join(dict.fromkeys(rows['method']))}. Means with 95% bootstrap intervals over runs, three "
         f"significant figures; `correct` is the final recognition accuracy (0-1); `given`: the method is handed "
-        f"that quantity; `–`: the method does not produce it. Scenario hash `{digest}`.\n",
+        f"that quantity; `–`: the method does not produce it. {_test_sets_line(rows)}Scenario hash `{digest}`.\n",
         markdown(tables["headline"]),
     ]
     recognises = len(recognising(rows)) > 0    # a scenario of reproduction alone has no recognition sections
@@ -184,27 +185,74 @@ def _top_answers(table: pd.DataFrame) -> pd.DataFrame:
 
 
 def tested_on_captures(scenario: Scenario) -> bool:
-    return scenario.database.source == "capture" or scenario.test.split == "captures"
+    return scenario.test.captures
+
+
+def _test_sets_line(rows: pd.DataFrame) -> str:
+    """The headline's note on its test sets when there are several (each condition is then reported per set),
+    and on the open-set rows it leaves out."""
+    parts = []
+    if "source" in rows and rows["source"].nunique() > 1:
+        runs = rows.drop_duplicates("run_key")["source"].value_counts()
+        parts.append("Each condition is reported per test set (`condition | set`: " + ", ".join(
+            f"{s} {n} runs" for s, n in runs.items()) + ").")
+    unknown = known_and_open_set(rows)[1]
+    if len(unknown):
+        parts.append(f"{unknown['run_key'].nunique()} open-set runs (motions of no class the database has) are left "
+                     f"out of every table but their own (\"Open set\").")
+    return " ".join(parts) + (" " if parts else "")
+
+
+HELD_OUT = {"subject": "every row of its subject in its set", "style": "every row of its style in its set",
+            "source": "every row of its set", "row": "itself alone",
+            "none": "nothing (it is in its own training set: an optimistic bound)"}
+
+
+def _split_lines(scenario: Scenario) -> list[str]:
+    """What each condition's database learns, what a capture test row holds out of it, and which rows were not
+    tested and why (``capture_splits.verdicts``)."""
+    from collections import Counter
+
+    from harness.evaluation.capture_splits import verdicts
+    from harness.evaluation.sweep import conditions
+
+    lines = []
+    for cond in conditions(scenario):
+        cfg = cond.config
+        db, test = cfg.database, cfg.test
+        learns = ([f"procedural demonstrations ({db.train_demos} per class)"] if db.learns_procedural else []) + (
+            [f"the capture rows of {', '.join(db.capture_sets or ())}"] if db.learns_captures else [])
+        line = f"- `{cond.label}`: the database learns {' and '.join(learns)}"
+        if db.learns_captures:
+            line += f"; a capture test row holds out {HELD_OUT[test.split]}"
+        found = verdicts(cfg)
+        kinds = Counter(v.kind for v in found)
+        line += f". Capture rows tested: {kinds['tested']}, open-set: {kinds['open_set']}"
+        skipped = Counter((v.row.set_name, v.why) for v in found if v.kind == "skipped")
+        if skipped:
+            line += "; not tested: " + "; ".join(f"{n} of {s} ({why})" for (s, why), n in sorted(skipped.items()))
+        lines.append(line + ".\n")
+    return lines
 
 
 def _capture_sections(scenario: Scenario, rows: pd.DataFrame, tables: dict) -> list[str]:
-    """For scenarios tested on real captures: which classes each condition tested (a cross-subject condition
-    tests the classes that at least two subjects performed), and every confusion matrix as a table."""
+    """For scenarios tested on real captures: what each condition's database learned and held out, the classes
+    tested, recognition per set and style, the open-set rows, and every confusion matrix as a table."""
     if not tested_on_captures(scenario):
         return []
-    classes = list(scenario.database.classes or scenario.classes)
+    classes = list(scenario.classes)
+    known = by_test_set(known_and_open_set(rows)[0])
     lines = []
-    for cond, grp in rows.groupby("condition", sort=False):
+    for cond, grp in known.groupby("condition", sort=False):
         runs = grp.drop_duplicates("run_key")["class_true"].value_counts()
         tested = [c for c in classes if c in runs] + sorted(set(runs.index) - set(classes))
-        left = [c for c in classes if c not in runs]
-        line = f"- `{cond}`: " + ", ".join(f"{c} ({runs[c]})" for c in tested)
-        split = grp["test.split"].iloc[0] if "test.split" in grp else scenario.test.split
-        if left:
-            why = " (performed by one subject only)" if split == "cross_subject" else " (no demonstration)"
-            line += f"; not tested: {', '.join(left)}{why}"
-        lines.append(line + "\n")
-    parts = ["### Classes tested\n", "".join(lines)]
+        lines.append(f"- `{cond}`: " + ", ".join(f"{c} ({runs[c]})" for c in tested) + "\n")
+    parts = ["### What each split held out\n", "".join(_split_lines(scenario)),
+             "### Classes tested\n", "".join(lines)]
+    for name, title in (("by_source", "Recognition per capture set"), ("by_style", "Recognition per style"),
+                        ("open_set", "Open set: motions of no class the database has")):
+        if name in tables and len(tables[name]):
+            parts += [f"### {title}\n", markdown(tables[name])]
     for (cond, method), mat in tables["_confusion_matrices"].items():
         table = mat.reset_index().rename(columns={"true": "true \\ answer"})
         parts += [f"### Confusion: `{cond}`, `{method}`\n", markdown(table)]

@@ -38,7 +38,8 @@ from harness.io import write_text_atomic
 from harness.version import code_version
 
 RunFunction = Callable[["RunSpec"], list[dict]]
-IDENTITY_COLUMNS = ("run_key", "scenario", "condition", "repeat", "test_class", "test_demo", "seed")
+IDENTITY_COLUMNS = ("run_key", "scenario", "condition", "repeat", "source", "test_class", "test_demo", "seed")
+PROCEDURAL = "procedural"      # the source of a procedural test motion (a capture row's is its set's name)
 STREAM_CLASS = "stream"         # the test class of a stream run (its labels are per frame)
 SCHEDULER_TIMEOUT_S = 10.0      # a Dask scheduler that does not answer in this time is not there
 
@@ -51,8 +52,9 @@ class RunError(HarnessError):
 class RunSpec:
     """Everything one run needs. ``config`` is the condition's resolved scenario (swept values applied).
 
-    swept: the condition's ``(dotted key, value)`` pairs. test_demo: the performer's demo index (procedural:
-    held out, ``train_demos + i``) or the demo's position among its class's manifest rows (capture).
+    swept: the condition's ``(dotted key, value)`` pairs. test_source: ``procedural`` or the capture set of the
+    test row. test_demo: the performer's demo index (procedural: held out, ``train_demos + i``) or the row's
+    position among its set's rows of its class (``capture_splits.row_index``).
     seed: the run's seed (non-negative int below 2**63). cache_dir: where the pipeline caches databases.
     code: the code version the run was planned with (``harness.version``; a worker running other code
     refuses the run).
@@ -68,10 +70,11 @@ class RunSpec:
     seed: int
     cache_dir: str
     code: str = ""
+    test_source: str = PROCEDURAL
 
     @property
     def key(self) -> str:
-        return run_key(self.condition, self.repeat, self.test_class, self.test_demo)
+        return run_key(self.condition, self.repeat, self.test_class, self.test_demo, self.test_source)
 
     def rng(self) -> np.random.Generator:
         """The run's generator (a fresh one on every call, so that repeated calls are identical)."""
@@ -81,13 +84,15 @@ class RunSpec:
         """The identity columns the runner adds to each of the run's rows, swept keys included."""
         out = {"run_key": self.key, "scenario": self.config.name, "condition": self.condition_label}
         out.update({k: (v if isinstance(v, (int, float, str, bool)) else str(v)) for k, v in self.swept})
-        out.update({"repeat": self.repeat, "test_class": self.test_class, "test_demo": self.test_demo,
-                    "seed": self.seed})
+        out.update({"repeat": self.repeat, "source": self.test_source, "test_class": self.test_class,
+                    "test_demo": self.test_demo, "seed": self.seed})
         return out
 
 
-def run_key(condition: int, repeat: int, test_class: str, test_demo: int) -> str:
-    return f"c{condition:03d}/r{repeat:03d}/{test_class}/d{test_demo:03d}"
+def run_key(condition: int, repeat: int, test_class: str, test_demo: int, source: str = PROCEDURAL) -> str:
+    """``c000/r001/kick/d009``; a capture row's names its set: ``c000/r001/cmu/kick/d003``."""
+    where = "" if source == PROCEDURAL else f"{source}/"
+    return f"c{condition:03d}/r{repeat:03d}/{where}{test_class}/d{test_demo:03d}"
 
 
 def _word(text: str) -> int:
@@ -95,41 +100,36 @@ def _word(text: str) -> int:
     return int.from_bytes(hashlib.sha256(text.encode()).digest()[:4], "little")
 
 
-def derive_seed(scenario_seed: int, repeat: int, test_class: str, test_demo: int) -> int:
-    """The run's seed: ``SeedSequence([scenario seed, repeat, word(class), demo])`` folded to 63 bits."""
-    ss = np.random.SeedSequence([int(scenario_seed), int(repeat), _word(test_class), int(test_demo)])
+def derive_seed(scenario_seed: int, repeat: int, test_class: str, test_demo: int, source: str = PROCEDURAL) -> int:
+    """The run's seed: ``SeedSequence([scenario seed, repeat, word(class), demo])`` folded to 63 bits, with
+    ``word(source)`` appended for a capture row (so rows of several sets never share draws)."""
+    parts = [int(scenario_seed), int(repeat), _word(test_class), int(test_demo)]
+    ss = np.random.SeedSequence(parts + ([] if source == PROCEDURAL else [_word(source)]))
     lo, hi = ss.generate_state(2, np.uint32)
     return int((int(hi) << 32 | int(lo)) & (2**63 - 1))
 
 
-def motions_under_test(config: Scenario) -> list[tuple[str, int]]:
-    """``(class, demo index)`` of every test motion: held-out procedural demos, or every manifest demo of the
-    listed classes (the pipeline trains each capture split's database without the runs it tests); for streams
-    ``("stream", i)``, the i-th procedural stream or capture take."""
-    db = config.database
-    if config.test.stream is not None:
+def motions_under_test(config: Scenario) -> list[tuple[str, str, int]]:
+    """``(source, class, demo index)`` of every test motion: held-out procedural demos, and the capture rows the
+    split tests (``capture_splits.verdicts``: known classes and open-set rows); for streams
+    ``("procedural", "stream", i)`` or ``(set, "stream", i)``, the i-th procedural stream or capture take."""
+    db, test = config.database, config.test
+    if test.stream is not None:
         # Streams: one run per procedural stream or capture take; the class column says "stream".
-        stream = config.test.stream
-        n = len(stream.takes) if stream.takes is not None else stream.count
-        return [(STREAM_CLASS, i) for i in range(n)]
-    if db.source == "procedural" and config.test.split == "heldout":
-        return [(c, db.train_demos + i) for c in config.classes for i in range(config.test.demos_per_class)]
-    from harness.motion.captures import demos_by_class, read_manifest
-
-    if db.capture_dir is None or (config.test.split != "captures" and db.classes is None):
-        raise RunError(f"{config.name}: capture scenario not resolved (call scenario_captures.resolve_capture first)")
-    rows = read_manifest(Path(db.capture_dir) / db.manifest)
-    by_class = demos_by_class(rows)
-    if config.test.split == "captures":
-        return [(c, i) for c in config.classes if c in by_class for i in range(len(by_class[c]))]
+        stream = test.stream
+        if stream.takes is None:
+            return [(PROCEDURAL, STREAM_CLASS, i) for i in range(stream.count)]
+        return [(db.capture_sets[0], STREAM_CLASS, i) for i in range(len(stream.takes))]
     out = []
-    for c in db.classes:
-        subjects = {rows[k].subject for k in by_class.get(c, [])}
-        for i, k in enumerate(by_class.get(c, [])):
-            # Cross-subject: a demo is testable only if another subject performed its class.
-            if config.test.split == "cross_subject" and subjects == {rows[k].subject}:
-                continue
-            out.append((c, i))
+    if test.procedural:
+        out += [(PROCEDURAL, c, db.train_demos + i) for c in config.classes for i in range(test.demos_per_class)]
+    if test.captures:
+        from harness.evaluation.capture_splits import verdicts
+
+        if db.capture_dirs is None:
+            raise RunError(f"{config.name}: capture scenario not resolved (call scenario_captures.resolve_capture "
+                           f"first)")
+        out += [(v.row.set_name, v.row.label, v.demo) for v in verdicts(config) if v.kind != "skipped"]
     return out
 
 
@@ -140,12 +140,14 @@ def plan(scenario: Scenario, cache_dir: str | Path) -> list[RunSpec]:
     for cond in conditions(scenario):
         motions = motions_under_test(cond.config)
         repeats = cond.config.repeats       # swept repeats: each condition runs its own number
-        if len(runs) + repeats * len(motions) > MAX_RUNS:
+        capture_repeats = cond.config.test.capture_repeats or repeats
+        if len(runs) + max(repeats, capture_repeats) * len(motions) > MAX_RUNS:
             raise RunError(f"{scenario.name}: the plan has more than {MAX_RUNS} runs: reduce repeats or the sweep")
-        for rep in range(repeats):
-            for cls, demo in motions:
+        for source, cls, demo in motions:
+            for rep in range(repeats if source == PROCEDURAL else capture_repeats):
                 runs.append(RunSpec(cond.config, cond.index, cond.label, cond.values, rep, cls, demo,
-                                    derive_seed(scenario.seed, rep, cls, demo), str(cache_dir), code))
+                                    derive_seed(scenario.seed, rep, cls, demo, source), str(cache_dir), code,
+                                    source))
     return sorted(runs, key=lambda r: r.key)
 
 

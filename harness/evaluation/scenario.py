@@ -57,20 +57,53 @@ class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
-class DatabaseConfig(_Section):
-    """Where the motion database comes from and how it is trained."""
+SOURCES = ("procedural", "captures", "both")
+SPLITS = ("subject", "style", "source", "row", "none")
+CAPTURE_COLUMNS = ("source", "subject", "style", "class")
+# Keys and values of before issue 59, refused with their new form (one line, the value's new spelling).
+FORMER_VALUES = {
+    ("database", "source", "capture"): "database.source: 'captures'",
+    ("test", "split", "heldout"): "test.motions: procedural (held-out demonstrations are the default)",
+    ("test", "split", "captures"): "test.motions: captures",
+    ("test", "split", "leave_one_out"): "test.split: row",
+    ("test", "split", "cross_subject"): "test.split: subject",
+    ("test", "split", "all"): "test.split: none",
+}
+FORMER_KEYS = {
+    ("database", "capture_dir"): "give --mocap-dir DIR (or database.capture_dirs: [DIR]) and database.capture_sets",
+    ("database", "with_captures"): "database.source: both (the capture rows of the other subjects with "
+                                   "test.split: subject)",
+}
 
-    source: Literal["procedural", "capture"] = "procedural"
-    capture_dir: str | None = None          # capture only; else --mocap-dir or $HARNESS_MOCAP_DIR
-    manifest: str = "MANIFEST.csv"          # capture only; a path inside capture_dir
-    classes: tuple[str, ...] | None = None  # default: all procedural classes / the manifest's classes
+
+def _refuse_former(section: str):
+    """A before-validator refusing a key or value of before issue 59 with its new form."""
+    def check(cls, values):
+        if isinstance(values, dict):
+            for key, value in values.items():
+                if (section, key) in FORMER_KEYS:
+                    raise ValueError(f"{key}: no longer a key: {FORMER_KEYS[(section, key)]}")
+                if isinstance(value, str) and (section, key, value) in FORMER_VALUES:
+                    raise ValueError(f"{key}: {value!r} is now {FORMER_VALUES[(section, key, value)]}")
+        return values
+    return model_validator(mode="before")(check)
+
+
+class DatabaseConfig(_Section):
+    """What the motion database learns from and how it is trained."""
+
+    _former = _refuse_former("database")
+    source: Literal[SOURCES] = "procedural"     # procedural demonstrations, capture rows, or both
+    capture_sets: tuple[str, ...] | None = None  # the capture sets of the scenario, by name (the directory's);
+                                                 # default: every set given, else the repository's library
+    capture_dirs: tuple[str, ...] | None = None  # where sets are (else --mocap-dir, $HARNESS_MOCAP_DIR, library)
+    manifest: str = "MANIFEST.csv"          # each set's manifest, a path inside its directory
+    classes: tuple[str, ...] | None = None  # default: the procedural classes and the capture sets' classes
     train_demos: int = Field(8, ge=1, le=1000)   # demonstrations per class (procedural)
     states: int = Field(20, ge=2, le=500)   # HMM states per primitive (per side)
     mirrored: bool = True                   # both-handed: each HMM also holds its mirror-image chain
     seed: int = Field(0, ge=0)              # training seed (demo generation and HMM initialisation)
     fps: float = Field(30.0, gt=0, le=1000)  # frames per second of training and test motions
-    with_captures: bool = False             # procedural, test.split captures: also train on the capture demos
-                                            # of every subject but the test motion's
 
     @field_validator("manifest")
     @classmethod
@@ -84,6 +117,8 @@ class DatabaseConfig(_Section):
 
     @model_validator(mode="after")
     def _check_classes(self):
+        from harness.motion.captures import NO_PRIMITIVE
+
         if self.classes is not None:
             if len(self.classes) == 0:
                 raise ValueError("classes: empty list (omit the key for the default classes)")
@@ -91,9 +126,24 @@ class DatabaseConfig(_Section):
                 for i, c in enumerate(self.classes):
                     if c not in PROCEDURAL_CLASSES:
                         raise ValueError(f"classes[{i}]: unknown class {c!r} (valid: {', '.join(PROCEDURAL_CLASSES)})")
+            if NO_PRIMITIVE in self.classes:
+                raise ValueError(f"classes: {NO_PRIMITIVE!r} marks capture rows of no primitive (open-set test "
+                                 f"motions), never a database class")
             if len(set(self.classes)) != len(self.classes):
                 raise ValueError(f"classes: listed twice: {sorted({c for c in self.classes if self.classes.count(c) > 1})}")
+        for key in ("capture_sets", "capture_dirs"):
+            value = getattr(self, key)
+            if value is not None and (not value or len(set(value)) != len(value)):
+                raise ValueError(f"{key}: give each at least once and none twice (got {list(value)})")
         return self
+
+    @property
+    def learns_procedural(self) -> bool:
+        return self.source in ("procedural", "both")
+
+    @property
+    def learns_captures(self) -> bool:
+        return self.source in ("captures", "both")
 
 
 class StreamConfig(_Section):
@@ -121,16 +171,38 @@ class StreamConfig(_Section):
 
 
 class SplitConfig(_Section):
-    """Which motions are tested: held-out procedural demos, a split of the capture set, or (``captures``) every
-    capture demonstration against a procedural database (sim-to-real); or, with ``stream``, streams of several
-    primitives (``docs/streams.md``)."""
+    """What is tested, and what a capture test motion holds out of its database.
 
+    ``motions``: held-out procedural demonstrations (``demos_per_class`` per class, by subjects the database
+    never saw), capture rows, or both. A capture row is tested against a database without every capture row of
+    its ``split`` group (its subject, its style, its whole capture set, itself alone, or nothing); procedural
+    demonstrations, when the database learns them, are never held out (their test subjects are never trained
+    on). ``select``: the capture rows tested, a list of filters (a row is tested when some filter matches all its
+    columns; none: every row of ``capture_sets``). Rows of a class the database does not have (``other``) are
+    open-set test motions (``open_set``), scored apart. Or, with ``stream``, streams of several primitives
+    (``docs/streams.md``)."""
+
+    _former = _refuse_former("test")
+    motions: Literal["procedural", "captures", "both"] = "procedural"
     demos_per_class: int = Field(2, ge=1, le=1000)  # procedural: held-out demos per class
-    split: Literal["heldout", "captures", "leave_one_out", "cross_subject", "all"] = "heldout"
+    split: Literal[SPLITS] = "subject"
+    capture_sets: tuple[str, ...] | None = None     # the sets whose rows are tested (default: every set)
+    select: tuple[dict[Literal[CAPTURE_COLUMNS], tuple[str, ...]], ...] | None = None
+    open_set: bool = True                           # test rows of classes the database does not have
+    window_s: float | None = Field(None, gt=0, le=3600)   # a longer capture row is tested on its middle window
+    capture_repeats: int | None = Field(None, ge=1, le=MAX_RUNS)  # repeats of capture rows (default: repeats)
     stream: StreamConfig | None = None
     # procedural: the share of test performances of every primitive that are left-sided (None: each primitive's
     # calibrated share); the database's demonstrations keep theirs
     left: float | None = Field(None, ge=0.0, le=1.0)
+
+    @property
+    def procedural(self) -> bool:
+        return self.motions in ("procedural", "both")
+
+    @property
+    def captures(self) -> bool:
+        return self.motions in ("captures", "both")
 
 
 # --- sections generated from the scene's spec types and the engine's TrackerConfig ------------------------
@@ -292,37 +364,45 @@ class Scenario(_Section):
 
     @model_validator(mode="after")
     def _check_split(self):
-        procedural = self.database.source == "procedural"
-        if procedural != (self.test.split in ("heldout", "captures")):
-            valid = "heldout, captures" if procedural else "leave_one_out, cross_subject, all"
-            raise ValueError(f"test.split: {self.test.split!r} does not fit database.source "
-                             f"{self.database.source!r} (valid: {valid})")
+        db, test = self.database, self.test
         if self.methods is not None and not self.methods:
             raise ValueError("methods: empty list")
-        if self.test.left is not None and not (procedural and self.test.split == "heldout"):
-            raise ValueError(f"test.left: only procedural test performances choose a side (test.split 'heldout'), "
-                             f"got test.split {self.test.split!r}")
-        if self.database.with_captures and self.test.split != "captures":
-            raise ValueError("database.with_captures: needs test.split 'captures' (a procedural database tested "
-                             "on captures)")
-        stream = self.test.stream
+        if test.procedural and not db.learns_procedural:
+            raise ValueError(f"test.motions: {test.motions!r} tests procedural demonstrations, which a database of "
+                             f"database.source {db.source!r} never learns (source: procedural or both)")
+        if test.left is not None and not test.procedural:
+            raise ValueError(f"test.left: only procedural test performances choose a side, got test.motions "
+                             f"{test.motions!r}")
+        for key in ("capture_sets", "select", "window_s", "capture_repeats"):
+            if getattr(test, key) is not None and not test.captures:
+                raise ValueError(f"test.{key}: set for capture test rows, but test.motions is {test.motions!r}")
+        if test.capture_sets is not None and db.capture_sets is not None:
+            for i, name in enumerate(test.capture_sets):
+                if name not in db.capture_sets:
+                    raise ValueError(f"test.capture_sets[{i}]: {name!r} is not one of database.capture_sets "
+                                     f"({', '.join(db.capture_sets)})")
+        stream = test.stream
         if stream is not None:
-            if procedural and self.test.split != "heldout":
-                raise ValueError(f"test.split: streams of a procedural database are performed by held-out "
-                                 f"subjects: 'heldout', got {self.test.split!r}")
-            if procedural and stream.takes is not None:
-                raise ValueError("test.stream.takes: capture takes need database.source 'capture'")
-            if not procedural and self.test.split != "leave_one_out":
-                raise ValueError(f"test.split: a capture stream is tested against a database trained without its "
-                                 f"take: 'leave_one_out', got {self.test.split!r}")
-            if not procedural and stream.takes is None:
-                raise ValueError("test.stream.takes: a capture stream scenario lists its takes (file stems)")
+            if stream.takes is None and test.motions != "procedural":
+                raise ValueError("test.stream: procedural streams are performed by held-out subjects: test.motions "
+                                 "procedural")
+            if stream.takes is not None and (test.motions != "captures" or not db.learns_captures
+                                             or test.split != "row"):
+                raise ValueError("test.stream.takes: a capture take is tested against a database of the capture "
+                                 "rows without its own: database.source captures or both, test.motions captures, "
+                                 "test.split row")
         return self
 
     @property
     def classes(self) -> tuple[str, ...]:
-        """The classes of a procedural database (capture databases are resolved by ``resolve_capture``)."""
+        """The database's classes: as listed, else the procedural ones (a scenario with capture sets has them
+        fixed by ``scenario_captures.resolve_capture``)."""
         return self.database.classes or PROCEDURAL_CLASSES
+
+    @property
+    def uses_captures(self) -> bool:
+        """Whether the scenario reads capture sets (to learn from or to test)."""
+        return self.database.learns_captures or self.test.captures
 
 
 def scene_spec(config: Scenario, rng: np.random.Generator) -> SceneSpec:

@@ -27,8 +27,9 @@ from harness.settings import unknown_key
 # independent draws.
 UNSWEEPABLE = {"seed": "the scenario seed is shared by every condition (common random numbers); raise repeats for "
                        "independent draws",
-               "database.capture_dir": "a capture set is resolved once per scenario",
-               "database.manifest": "a capture set is resolved once per scenario"}
+               "database.capture_sets": "capture sets are resolved once per scenario",
+               "database.capture_dirs": "capture sets are resolved once per scenario",
+               "database.manifest": "capture sets are resolved once per scenario"}
 
 
 def set_dotted(raw: dict, key: str, value: Any, where: str = "<scenario>") -> dict:

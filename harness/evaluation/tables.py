@@ -405,14 +405,70 @@ def heading_spread(rows: pd.DataFrame) -> pd.DataFrame:
     return _estimated_pose_groups(rows, need, cols, 1, one)
 
 
+def known_and_open_set(rows: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The rows of motions of a class the database has, and the open-set rows (``open_set``: a capture row of
+    no class it has), which no accuracy or error table counts."""
+    if "open_set" not in rows or not len(rows):
+        return rows, rows.iloc[0:0]
+    unknown = rows["open_set"].fillna(False).astype(bool)
+    return rows[~unknown], rows[unknown]
+
+
+def by_test_set(rows: pd.DataFrame) -> pd.DataFrame:
+    """Rows whose condition names their test set (``<condition> | <source>``) when they come from several
+    (procedural demonstrations and capture sets): every table then reports each set apart."""
+    if "source" not in rows or rows["source"].nunique() < 2:
+        return rows
+    return rows.assign(condition=rows["condition"].astype(str) + " | " + rows["source"].astype(str))
+
+
+def accuracy_by(rows: pd.DataFrame, column: str) -> pd.DataFrame:
+    """Final recognition per condition, recognising method and value of ``column`` (``source``, ``style``,
+    ``class_true``): runs, right answers and accuracy."""
+    g = recognising(rows)
+    if column not in g or not len(g):
+        return pd.DataFrame(columns=["condition", "method", column, "runs", "right", "accuracy"])
+    correct = pd.to_numeric(g["correct"], errors="coerce")
+    out = (g.assign(_c=correct).groupby(["condition", "method", column], sort=False)
+           .agg(runs=("_c", "size"), right=("_c", "sum"), accuracy=("_c", "mean")).reset_index())
+    out["right"] = out["right"].astype(int)
+    return _order(out, [column])
+
+
+def open_set(rows: pd.DataFrame) -> pd.DataFrame:
+    """The open-set rows (motions of no class the database has) per condition, recognising method and true
+    label: runs, the answers given (most first) and the mean and largest confidence."""
+    g = recognising(rows)
+    cols = ["condition", "method", "class_true", "runs", "answers", "confidence", "confidence_max"]
+    if not len(g):
+        return pd.DataFrame(columns=cols)
+    out = []
+    for (cond, method, label), sub in g.groupby(["condition", "method", "class_true"], sort=False):
+        counts = sub["class_pred"].astype(str).value_counts()
+        conf = pd.to_numeric(sub["confidence"], errors="coerce")
+        out.append({"condition": cond, "method": method, "class_true": label, "runs": len(sub),
+                    "answers": ", ".join(f"{c} {n}" for c, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))),
+                    "confidence": float(conf.mean()), "confidence_max": float(conf.max())})
+    return pd.DataFrame(out, columns=cols)
+
+
 def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str],
                  n_boot: int = N_BOOT, seed: int = 0) -> dict[str, pd.DataFrame]:
     """Write ``summary``, ``headline``, ``per_class``, ``class_accuracy``, ``answers``, ``confusion``,
     ``paired_tests``, ``accuracy_over_time``,
     ``heading_over_time``, ``worst_runs``, ``calibration``, ``reliability``, ``by_view``, ``pose_error_split`` and
     ``heading_spread`` as CSV and Markdown,
-    and ``metrics.json`` (pooled metrics), under ``out_dir``. Returns the tables by name."""
+    and ``metrics.json`` (pooled metrics), under ``out_dir``; with capture rows also ``by_source`` and
+    ``by_style`` (recognition per set and style) and ``open_set`` (the motions of no class the database has,
+    which every other table leaves out). Returns the tables by name."""
     out_dir = Path(out_dir)
+    rows, unknown = known_and_open_set(rows)
+    extra = {"open_set": open_set(unknown)} if len(unknown) else {}
+    for column, name in (("source", "by_source"), ("style", "by_style")):
+        if column in rows and rows[column].fillna("").astype(str).ne("").any() and (
+                column == "style" or rows[column].nunique() > 1):
+            extra[name] = accuracy_by(rows, column)
+    rows = by_test_set(rows)
     summ = summary(rows, swept, n_boot, seed)
     timing = summ[summ["metric"].isin(TIMING)] if len(summ) else summ
     if "repro_dtw_deg" in rows:         # reproduction columns next to the others
@@ -428,6 +484,7 @@ def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], clas
               "calibration": calibration_table(rows, swept), "reliability": reliability_table(rows),
               "by_view": by_view(rows, n_boot, seed), "pose_error_split": pose_error_split(rows),
               "heading_spread": heading_spread(rows)}
+    tables |= extra
     conf = confusion(rows, classes)
     long = [{"condition": c, "method": m, "true": t, "predicted": p, "count": int(mat.loc[t, p])}
             for (c, m), mat in conf.items() for t in mat.index for p in mat.columns]

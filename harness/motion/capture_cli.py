@@ -19,7 +19,9 @@ def _import_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--manifest", default=None, help="manifest CSV (default: DIRECTORY/MANIFEST.csv)")
     p.add_argument("--out", default="captures", help="output directory for the Motion .npz files")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of the retargeted motions")
-    p.add_argument("--mapping", default=None, help="joint mapping file (YAML or CSV: source joint -> body)")
+    p.add_argument("--mapping", default=None, help="joint mapping file (YAML or CSV: source joint -> body) for every "
+                                                   "row (default: each BVH row's skeleton column, else the built-in "
+                                                   "tables)")
     p.add_argument("--classes", default=None, help="comma-separated allowed classes (others are an error)")
     p.add_argument("--report", default=None, help="also write the per-row retargeting quality table to this CSV")
 
@@ -81,6 +83,9 @@ def _video_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--end", type=int, default=None, help="end frame (exclusive) of a file source")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of the retargeted motion and video")
     p.add_argument("--source-fps", type=float, default=120.0, help="frame rate of an .amc file (default 120)")
+    p.add_argument("--mapping", default=None, help="joint mapping file (YAML or CSV: source joint -> body) for a "
+                                                   "skeleton the built-in tables do not know (a manifest row's own "
+                                                   "skeleton column is used otherwise)")
     p.add_argument("--stills", type=int, default=0, help="also write this many evenly spaced PNG stills")
     p.add_argument("--worst-stills", type=int, default=0,
                    help="also write PNG stills of this many frames with the largest residual")
@@ -94,23 +99,26 @@ def _capture_video(args: argparse.Namespace) -> int:
     from harness.io import check_output_file, write_atomic
     from harness.motion.captures import file_positions, retarget_rows
     from harness.motion.retarget import retarget
+    from harness.motion.skeletons import load_mapping
     from harness.video import render_motion, write_video
 
     check_output_file(args.out)
     body = BodyModel.load()
+    mapping = load_mapping(args.mapping, body.body_names) if args.mapping else None
     if args.source.isdigit():
         directory = Path(args.dir)
         rows = _manifest_rows(directory, args.manifest)
         chosen = [r for r in rows if r.line == int(args.source)]
         if not chosen:
             raise HarnessError(f"manifest has no row {args.source} (rows: {rows[0].line}-{rows[-1].line})")
-        (_, result), = retarget_rows(directory, chosen, args.fps, body)
+        (_, result), = retarget_rows(directory, chosen, args.fps, body, mapping)
     else:
         path = Path(args.source)
         if not path.is_file():
             raise HarnessError(f"{path}: no such file (capture-video takes a .bvh or .amc file or a manifest row)")
         positions, names, fps, unit_m = file_positions(path, args.skeleton, args.start, args.end, args.source_fps)
-        result = retarget(positions, names, fps, unit_m=unit_m, fps_out=args.fps, body=body, where=args.source)
+        result = retarget(positions, names, fps, unit_m=unit_m, fps_out=args.fps, mapping=mapping, body=body,
+                          where=args.source)
     frames = list(render_motion(body.model, result.qpos, width=args.size, height=args.size,
                                 spheres=result.source_positions, sphere_radius=0.03))
     n = write_video(args.out, frames, result.fps)

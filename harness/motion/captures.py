@@ -1,10 +1,14 @@
-"""Capture sets: a directory of BVH / ASF-AMC files plus a manifest CSV -> labelled humanoid56 ``Motion``s.
+"""Capture sets: a directory of capture files plus a manifest CSV -> labelled humanoid56 ``Motion``s.
 
 Manifest format (``docs/captures.md``): one row per demonstration, columns ``file, format, skeleton,
-subject, trial, class, start, end, fps`` (further columns such as ``description`` are kept out of the way).
-``start``/``end`` index the frames as stored in the file, 0-based, end exclusive; a row that should skip a
-BVH reference pose simply starts at 1. BVH rows take their frame rate from the file's ``Frame Time``,
-AMC rows (which carry none) from ``fps``.
+subject, trial, class, start, end, fps`` and optionally ``style`` (further columns such as ``description`` are
+kept out of the way). ``start``/``end`` index the frames as stored in the file, 0-based, end exclusive; a row
+that should skip a BVH reference pose simply starts at 1. Formats: ``bvh`` (its frame rate from the file's
+``Frame Time``; ``skeleton``, when given, names a joint-mapping file in the directory for a skeleton the
+built-in tables do not know), ``amc`` (``skeleton`` names its ASF file; the rate is ``fps``) and ``npz`` (a
+humanoid56 ``Motion`` file, already retargeted: the capture library's rows). A set's name is its directory's
+name; every motion of a row keeps it as ``source``, with the row's subject, style and ``demo`` (the file's stem
+and frame range).
 """
 
 from __future__ import annotations
@@ -25,10 +29,15 @@ from harness.motion.asf_amc import asf_forward_kinematics, joint_names, load_amc
 from harness.motion.bvh import CMU_BVH_UNIT_M, load_bvh
 from harness.motion.motion import Motion
 from harness.motion.retarget import RetargetResult, retarget
+from harness.motion.skeletons import MAPPING_SUFFIXES, load_mapping
 
 MANIFEST_NAME = "MANIFEST.csv"
 REQUIRED_COLUMNS = ("file", "format", "skeleton", "subject", "trial", "class", "start", "end", "fps")
-FORMATS = ("bvh", "amc")
+FORMATS = ("bvh", "amc", "npz")
+OPTIONAL_COLUMNS = ("style",)
+#: The class of rows that show none of the primitives (``../shared/mocap/bandai``'s raised hands): never a
+#: database's class; such rows are open-set test motions.
+NO_PRIMITIVE = "other"
 #: Issue 14's limits on a row's scale-normalised residual over every frame and target (metres): mean,
 #: 95th percentile, maximum. A row beyond them is imported with a ``CaptureQualityWarning``.
 RESIDUAL_LIMITS = {"mean": 0.03, "p95": 0.08, "max": 0.15}
@@ -64,18 +73,16 @@ class CaptureRow:
     start: int
     end: int
     fps: float
+    style: str = ""
+    set_name: str = ""
 
     def where(self, column: str) -> str:
         return f"{self.manifest}: row {self.line}, column {column!r}"
 
     @property
     def demo(self) -> str:
-        """An id unique per row: file stem and frame range."""
+        """An id unique per row within its set: file stem and frame range."""
         return f"{Path(self.file).stem}:{self.start}-{self.end}"
-
-    @property
-    def source(self) -> str:
-        return f"{self.format}:{self.file}[{self.start}:{self.end}]"
 
 
 def _cell(value: str | None, limit: int = 40) -> str:
@@ -129,10 +136,13 @@ def check_rows(directory: str | Path, rows: list[CaptureRow]) -> None:
             inside(directory, row.skeleton, row.where("skeleton"))
 
 
-def read_manifest(path: str | Path, classes: list[str] | tuple[str, ...] | None = None) -> list[CaptureRow]:
+def read_manifest(path: str | Path, classes: list[str] | tuple[str, ...] | None = None,
+                  name: str | None = None) -> list[CaptureRow]:
     """Parse a manifest CSV (at least one row). ``classes``: when given, a row whose class is not among them is
-    an error. File columns must stay inside the capture directory."""
+    an error. File columns must stay inside the capture directory. ``name``: the set's name every row keeps
+    (default: the name of the manifest's directory)."""
     path = Path(path)
+    name = name or path.resolve().parent.name
     text = read_text(path, CaptureSetError, "manifest", MAX_MANIFEST_BYTES)
     if "\x00" in text:
         raise CaptureSetError(f"{path}: not a CSV text file (it contains NUL bytes)")
@@ -176,12 +186,19 @@ def read_manifest(path: str | Path, classes: list[str] | tuple[str, ...] | None 
             skeleton = (raw["skeleton"] or "").strip()
             if fmt == "amc" and not skeleton:
                 raise CaptureSetError(f"{where('skeleton')}: an amc row needs its ASF skeleton file")
+            if fmt == "bvh" and skeleton and Path(skeleton).suffix.lower() not in MAPPING_SUFFIXES:
+                raise CaptureSetError(f"{where('skeleton')}: a bvh row's skeleton names a joint-mapping file "
+                                      f"({', '.join(MAPPING_SUFFIXES)}), got {_cell(skeleton)}")
+            if fmt == "npz" and skeleton:
+                raise CaptureSetError(f"{where('skeleton')}: an npz row is a humanoid56 motion already, it takes "
+                                      f"no skeleton (got {_cell(skeleton)})")
             if skeleton:
                 _relative(skeleton, where("skeleton"))
             rows.append(CaptureRow(manifest=path, line=line, file=_relative(raw["file"].strip(), where("file")),
                                    format=fmt, skeleton=skeleton, subject=raw["subject"].strip(),
                                    trial=raw["trial"].strip(), label=label, start=values["start"],
-                                   end=values["end"], fps=values["fps"]))
+                                   end=values["end"], fps=values["fps"], style=(raw.get("style") or "").strip(),
+                                   set_name=name))
     except csv.Error as exc:
         raise CaptureSetError(f"{path}: line {reader.line_num}: not valid CSV ({exc})") from None
     if not rows:
@@ -253,20 +270,42 @@ def _row_positions(directory: Path, row: CaptureRow, files: dict
         raise CaptureSetError(f"{row.where('end')}: {exc}") from None
 
 
+def row_mapping(directory: Path, row: CaptureRow, body: BodyModel, mappings: dict) -> dict | None:
+    """The joint mapping a BVH row names in its ``skeleton`` column (a file inside the capture directory), or
+    None (the built-in tables); ``mappings`` keeps files already read by path."""
+    if row.format != "bvh" or not row.skeleton:
+        return None
+    path = inside(directory, row.skeleton, row.where("skeleton"))
+    if path not in mappings:
+        mappings[path] = load_mapping(path, body.body_names)
+    return mappings[path]
+
+
+def row_motion(row: CaptureRow, qpos: np.ndarray, fps: float) -> Motion:
+    """The labelled motion of a row: its class, subject, style, set (``source``) and ``demo``."""
+    return Motion(qpos=qpos, fps=fps, label=row.label, subject=row.subject, demo=row.demo, source=row.set_name,
+                  style=row.style)
+
+
 def retarget_rows(directory: str | Path, rows: list[CaptureRow], fps: float = 30.0,
                   body: BodyModel | None = None, mapping: dict[str, str | None] | None = None
                   ) -> list[tuple[Motion, RetargetResult]]:
-    """Retarget each manifest row; returns the labelled motion and the retargeting details per row."""
+    """Retarget each manifest row (``bvh`` and ``amc``); returns the labelled motion and the retargeting details
+    per row. ``mapping``: one joint mapping for every row (a command line's ``--mapping``), instead of the one a
+    BVH row names in its ``skeleton`` column and the built-in tables."""
     body = body or BodyModel.load()
     directory = Path(directory)
     files: dict = {}
+    mappings: dict = {}
     out = []
     for row in rows:
+        if row.format == "npz":
+            raise CaptureSetError(f"{row.where('format')}: an npz row is retargeted already (row_motions loads it)")
         positions, names, src_fps, unit_m = _row_positions(directory, row, files)
-        result = retarget(positions, names, src_fps, unit_m=unit_m, up="y", fps_out=fps, mapping=mapping,
+        chosen = mapping if mapping is not None else row_mapping(directory, row, body, mappings)
+        result = retarget(positions, names, src_fps, unit_m=unit_m, up="y", fps_out=fps, mapping=chosen,
                           body=body, where=f"{row.where('file')} ({row.file})")
-        motion = Motion(qpos=result.qpos, fps=result.fps, label=row.label, subject=row.subject, demo=row.demo,
-                        source=row.source)
+        motion = row_motion(row, result.qpos, result.fps)
         quality = row_quality(row, result)
         if not quality["within_limits"]:
             warnings.warn(CaptureQualityWarning(
@@ -308,15 +347,35 @@ def write_quality_csv(path: str | Path, table: list[dict]) -> None:
     write_text_atomic(path, buf.getvalue())
 
 
+def library_motion(directory: Path, row: CaptureRow, fps: float) -> Motion:
+    """An ``npz`` row: frames ``[start, end)`` of a stored humanoid56 motion, at ``fps``."""
+    path = inside(directory, row.file, row.where("file"))
+    stored = Motion.load(path)
+    _check_range(path, row.start, row.end, stored.n_frames)
+    motion = row_motion(row, stored.qpos[row.start:row.end], stored.fps)
+    return motion if abs(motion.fps - fps) < 1e-9 else motion.resample(fps)
+
+
+def row_motions(directory: str | Path, rows: list[CaptureRow], fps: float = 30.0, body: BodyModel | None = None,
+                mapping: dict[str, str | None] | None = None) -> list[Motion]:
+    """One humanoid56 ``Motion`` per row, in order: ``npz`` rows loaded, the others retargeted
+    (``retarget_rows``)."""
+    directory = Path(directory)
+    raw = [row for row in rows if row.format != "npz"]
+    retargeted = iter(m for m, _ in retarget_rows(directory, raw, fps, body, mapping)) if raw else iter(())
+    return [library_motion(directory, row, fps) if row.format == "npz" else next(retargeted) for row in rows]
+
+
 def load_capture_set(directory: str | Path, manifest: str | Path | None = None, fps: float = 30.0,
                      classes: list[str] | tuple[str, ...] | None = None, body: BodyModel | None = None,
                      mapping: dict[str, str | None] | None = None) -> list[Motion]:
     """One humanoid56 ``Motion`` per manifest row (``manifest`` defaults to ``directory/MANIFEST.csv``),
-    cut to the row's frame range and retargeted at ``fps``; label = class, subject = subject id, demo = an
-    id unique per row, source = format, file and range."""
+    cut to the row's frame range and retargeted (or loaded) at ``fps``; label = class, subject, style,
+    source = the set's name, demo = an id unique per row in the set."""
     directory = Path(directory)
     if not directory.is_dir():
         raise CaptureSetError(f"{directory}: no such capture directory")
-    rows = read_manifest(Path(manifest) if manifest is not None else directory / MANIFEST_NAME, classes)
+    rows = read_manifest(Path(manifest) if manifest is not None else directory / MANIFEST_NAME, classes,
+                         name=directory.resolve().name)
     check_rows(directory, rows)
-    return [m for m, _ in retarget_rows(directory, rows, fps, body, mapping)]
+    return row_motions(directory, rows, fps, body, mapping)

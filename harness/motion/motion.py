@@ -54,7 +54,9 @@ class Motion:
     """A labelled demonstration: ``qpos (T, 57)`` at ``fps`` frames per second.
 
     label: the motion primitive ("walk", ...). subject: who performed it. demo: an id unique within
-    (label, subject). source: where it came from ("procedural", "bvh:09_01.bvh", ...).
+    (source, label, subject): a capture's file stem and frame range (``"09_01:1-120"``). source: where it came
+    from: ``"procedural"`` or the capture set's name (``"cmu"``). style: the performance's style where the
+    capture set names one (``"tired"``), else empty.
     """
 
     qpos: np.ndarray
@@ -63,6 +65,7 @@ class Motion:
     subject: str = "0"
     demo: str = "0"
     source: str = "procedural"
+    style: str = ""
 
     def __post_init__(self):
         qpos = np.array(self.qpos, dtype=float)
@@ -122,7 +125,7 @@ class Motion:
 
     def replace(self, **changes) -> "Motion":
         fields = dict(qpos=self.qpos, fps=self.fps, label=self.label, subject=self.subject, demo=self.demo,
-                      source=self.source)
+                      source=self.source, style=self.style)
         fields.update(changes)
         return Motion(**fields)
 
@@ -149,19 +152,26 @@ class Motion:
 
     # --- files ----------------------------------------------------------------------------------
 
-    def save(self, path: str | Path) -> None:
+    def save(self, path: str | Path, dtype: type = np.float64, compressed: bool = False) -> None:
+        """Write the motion as ``.npz`` (``dtype``: of ``qpos``; the capture library keeps float32, compressed)."""
         save_npz_atomic(path, {
-            "qpos": np.asarray(self.qpos), "fps": np.array(self.fps), "label": np.array(self.label),
+            "qpos": np.asarray(self.qpos, dtype=dtype), "fps": np.array(self.fps), "label": np.array(self.label),
             "subject": np.array(self.subject), "demo": np.array(self.demo), "source": np.array(self.source),
-        })
+            "style": np.array(self.style),
+        }, compressed=compressed)
 
     @classmethod
     def load(cls, path: str | Path) -> "Motion":
         path = Path(path)
         try:
             with np.load(path, allow_pickle=False) as z:
-                return cls(qpos=z["qpos"], fps=float(z["fps"]), label=str(z["label"]), subject=str(z["subject"]),
-                           demo=str(z["demo"]), source=str(z["source"]))
+                qpos = np.asarray(z["qpos"], dtype=float)
+                if np.issubdtype(z["qpos"].dtype, np.floating) and z["qpos"].dtype != np.float64:
+                    # stored in single precision: unit base quaternions again to double precision
+                    qpos[:, 3:7] /= np.linalg.norm(qpos[:, 3:7], axis=1, keepdims=True)
+                return cls(qpos=qpos, fps=float(z["fps"]), label=str(z["label"]), subject=str(z["subject"]),
+                           demo=str(z["demo"]), source=str(z["source"]),
+                           style=str(z["style"]) if "style" in z.files else "")
         except FileNotFoundError:
             raise MotionError(f"{path}: no such motion file") from None
         except (KeyError, ValueError, OSError) as exc:

@@ -23,6 +23,7 @@ from harness.errors import HarnessError
 
 DIALECTS = ("asf", "bvh-motionbuilder", "bvh-3dsmax")
 MAX_MAPPING_BYTES = 1 << 20     # a joint-mapping file
+MAPPING_SUFFIXES = (".yaml", ".yml", ".csv")
 
 #: humanoid56 body or site -> source joint name per dialect (None: the dialect has no joint for it).
 ALIASES: dict[str, tuple[str | None, str | None, str | None]] = {
@@ -177,7 +178,7 @@ def load_mapping(path: str | Path, body_names: tuple[str, ...] | None = None) ->
     if not path.is_file():
         raise SkeletonMappingError(f"{path}: no such mapping file")
     out: dict[str, str | None] = {}
-    if path.suffix.lower() in (".yaml", ".yml"):
+    if path.suffix.lower() in MAPPING_SUFFIXES[:2]:
         from harness import safe_yaml
 
         data = safe_yaml.load(path, SkeletonMappingError, "mapping", MAX_MAPPING_BYTES)
