@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 
-.PHONY: setup test evaluate regress rebaseline check bench clean clean-cache
+.PHONY: setup test evaluate regress rebaseline check bench library clean clean-cache
 
 setup: $(STAMP)
 
@@ -33,11 +33,18 @@ rebaseline: $(STAMP)
 	$(PY) -m harness rebaseline --scenario scenarios/ci.yaml --baseline results/baseline --fresh
 
 # Acceptance checks that exit non-zero on a miss (scene geometry and rendering, the performer's nearest-class
-# requirement) and the retargeting table over the sample captures in ../shared/mocap/cmu. CI runs it.
+# requirement), the retargeting table over the sample captures in ../shared/mocap/cmu and ../shared/mocap/bandai,
+# and the capture library's own check. CI runs it.
 check: $(STAMP)
 	$(PY) benchmarks/scene_acceptance.py
 	$(PY) benchmarks/nearest_class.py
 	$(PY) benchmarks/retarget_manifest.py
+	$(PY) -m harness check-library captures
+
+# The capture library (captures/): every row of ../shared/mocap/cmu and ../shared/mocap/bandai retargeted again
+# to humanoid56, with each set's terms, and checked (about 4 minutes; commit the result with its reason).
+library: $(STAMP)
+	$(PY) -m harness build-library ../shared/mocap/cmu ../shared/mocap/bandai --out captures
 
 bench: $(STAMP)
 	$(PY) benchmarks/kinematics.py

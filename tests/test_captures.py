@@ -154,3 +154,64 @@ def test_import_warns_about_rows_beyond_the_limits_and_writes_the_report(tmp_pat
     expected = captures.row_quality(rows[0], results[0][1])
     assert float(table[0]["max_cm"]) == pytest.approx(expected["max_cm"])
     assert table[0]["worst_frames"] == expected["worst_frames"]
+
+
+def _bandai() -> "Path":
+    bandai = require_mocap().parent / "bandai"
+    if not (bandai / "MANIFEST.csv").is_file():
+        pytest.skip(f"{bandai} is absent (the Bandai Namco sample captures, ../shared/mocap/bandai)")
+    return bandai
+
+
+def test_a_set_whose_rows_name_different_skeletons_retargets_each_with_its_own(tmp_path, body):
+    """One set: a CMU BVH row (the built-in joint tables) beside a Bandai row whose skeleton column names the
+    set's mapping file; no style column. Each row is retargeted within the limits, keeps the set's name as its
+    source and has no style."""
+    import shutil
+
+    from harness.motion.captures import RESIDUAL_LIMITS, quality_table, retarget_rows
+
+    cmu, bandai = require_mocap(), _bandai()
+    for source, name in ((cmu, "09_01.bvh"), (bandai, "dataset-1_walk_normal_002.bvh"), (bandai, "mapping.yaml")):
+        shutil.copyfile(source / name, tmp_path / name)
+    path = _manifest(tmp_path, ["09_01.bvh,bvh,,9,1,run,1,61,120,", "dataset-1_walk_normal_002.bvh,bvh,mapping.yaml,"
+                                                                    "b1,walk-normal-002,walk,0,31,30,"])
+    rows = read_manifest(path)
+    assert [r.style for r in rows] == ["", ""] and {r.set_name for r in rows} == {tmp_path.name}
+    results = retarget_rows(tmp_path, rows, 30.0, body)
+    for q in quality_table(rows, results):
+        assert q["mean_cm"] <= 100 * RESIDUAL_LIMITS["mean"] and q["max_cm"] <= 100 * RESIDUAL_LIMITS["max"], q
+    assert [m.source for m, _ in results] == [tmp_path.name] * 2
+    # Without its mapping the Bandai skeleton is refused, naming the joints no table maps.
+    plain = _manifest(tmp_path, ["dataset-1_walk_normal_002.bvh,bvh,,b1,walk-normal-002,walk,0,31,30,"])
+    with pytest.raises(SkeletonMappingError, match="no joint-name table fits"):
+        retarget_rows(tmp_path, read_manifest(plain), 30.0, body)
+
+
+def test_a_style_column_is_read_and_a_missing_one_is_empty(tmp_path):
+    with_style = tmp_path / "a.csv"
+    with_style.write_text("file,format,skeleton,subject,trial,class,start,end,fps,style\nx.bvh,bvh,,1,1,walk,0,9,30,"
+                          "tired\n")
+    assert read_manifest(with_style, name="studio")[0].style == "tired"
+    assert read_manifest(_manifest(tmp_path, ["x.bvh,bvh,,1,1,walk,0,9,30,"]))[0].style == ""
+
+
+@pytest.mark.parametrize("skeleton, words", [
+    ("../mapping.yaml", "must be a path relative to the capture directory, without '..'"),
+    ("link.yaml", "leads outside the capture directory"),
+    ("mapping.txt", "a bvh row's skeleton names a joint-mapping file"),
+])
+def test_a_mapping_file_outside_the_capture_directory_is_refused_in_one_line(tmp_path, capsys, skeleton, words):
+    from harness.cli import main
+
+    directory = tmp_path / "set"
+    directory.mkdir()
+    (tmp_path / "mapping.yaml").write_text("Hips: pelvis\n")
+    (directory / "link.yaml").symlink_to(tmp_path / "mapping.yaml")
+    (directory / "walk.bvh").write_text("HIERARCHY\n")
+    (directory / "MANIFEST.csv").write_text(HEADER.replace(",description", "")
+                                            + f"walk.bvh,bvh,{skeleton},1,1,walk,0,9,30\n")
+    assert main(["import-capture", str(directory), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0] and "column 'skeleton'" in err[0], err
+    assert not (tmp_path / "out").exists()

@@ -243,7 +243,7 @@ def test_both_sources_train_on_the_other_subjects_captures(tmp_path, monkeypatch
     (tmp_path / "MANIFEST.csv").write_text(
         "file,format,skeleton,subject,trial,class,start,end,fps\n02_01.amc,amc,02.asf,2,1,walk,0,41,120\n"
         "02_01.amc,amc,02.asf,2,1,walk,41,82,120\n09_01.bvh,bvh,,9,1,run,1,41,120\n")
-    s = resolve_capture(parse_scenario({"name": "w", "database": {"source": "both", "train_demos": 1,
+    s = resolve_capture(parse_scenario({"name": "w", "database": {"source": "both", "train_demos": 1, "states": 4,
                                                                   "classes": ["walk", "run"]},
                                         "test": {"motions": "captures", "split": "subject"}}), tmp_path)
     test = Motion(qpos=np.tile(np.r_[0, 0, 1, 1, 0, 0, 0, np.zeros(50)], (2, 1)), fps=30.0, label="run",

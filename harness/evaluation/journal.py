@@ -27,7 +27,8 @@ from harness.io import read_input_bytes
 
 JOURNAL_NAME = "runs.jsonl"
 MAX_JOURNAL_BYTES = 4 * 2**30      # 100,000 runs (the plan's limit) of five methods are about 2 GB
-RUN_KEY = re.compile(r"^c\d{3,}/r\d{3,}/(?!\.\.?/)[^/\x00]+/d\d{3,}$")    # no '..' part
+# ``c000/r000/walk/d008``, or with a capture set's name ``c000/r000/cmu/walk/d008``; no '..' part
+RUN_KEY = re.compile(r"^c\d{3,}/r\d{3,}/(?:(?!\.\.?/)[^/\x00]+/)?(?!\.\.?/)[^/\x00]+/d\d{3,}$")
 
 
 class ResultsError(HarnessError):
@@ -83,7 +84,7 @@ def _record_problem(rec: Any) -> str | None:
     if not isinstance(rec, dict) or not {"key", "hash", "rows"} <= rec.keys():
         return "a record needs keys 'key', 'hash', 'rows'"
     if not isinstance(rec["key"], str) or not RUN_KEY.match(rec["key"]):
-        return "'key' must be a run key like c000/r000/walk/d008"
+        return "'key' must be a run key like c000/r000/walk/d008 or c000/r000/cmu/walk/d008"
     if not isinstance(rec["hash"], str):
         return "'hash' must be a string"
     if not isinstance(rec["rows"], list) or not all(isinstance(r, dict) for r in rec["rows"]):

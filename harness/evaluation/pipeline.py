@@ -120,7 +120,8 @@ def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
 
     Procedural demonstrations (``database.source`` procedural or both): ``performer.training_set``, subjects
     never used for tests. Capture rows (captures or both): every row of the database's classes (never
-    ``other``) but those of a capture test motion's group under ``test.split`` (``capture_splits.holds_out``);
+    ``other``) of at least ``database.states`` frames but those of a capture test motion's group under
+    ``test.split`` (``capture_splits.holds_out``);
     for a capture stream, every row of its take. Only the scenario's classes are learned."""
     from harness.evaluation.capture_splits import holds_out
 
@@ -129,7 +130,8 @@ def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
     if db.learns_procedural:
         out += list(_procedural_training(tuple(cfg.classes), db.train_demos, db.seed, float(db.fps)))
     if db.learns_captures:
-        motions = [m for m in _captures(cfg) if m.label in cfg.classes]
+        # A left-to-right chain needs a frame per state: shorter rows (two Bandai dashes of 0.6 s) only test.
+        motions = [m for m in _captures(cfg) if m.label in cfg.classes and m.n_frames >= db.states]
         if test is not None and cfg.test.stream is not None:
             # A capture stream is a whole take: none of its rows trains the database.
             take = test.demo.split(":")[0]

@@ -122,6 +122,10 @@ def resolve_capture(scenario: Scenario, mocap_dir=None, where: str | None = None
             if len(dirs) != 1:
                 raise ScenarioError(f"{where}: test.stream.takes: capture takes come from one capture set, the "
                                     f"scenario has {len(dirs)}")
+            if any(r.format == "npz" for r in rows):
+                raise ScenarioError(f"{where}: test.stream.takes: a take is retargeted whole from its capture "
+                                    f"files, which the set {dirs[0].name!r} ({dirs[0]}) does not hold (the library "
+                                    f"keeps the rows only): give the source set with --mocap-dir")
             takes = sorted({Path(r.file).stem for r in rows})
             for i, take in enumerate(stream.takes):
                 if take not in takes:

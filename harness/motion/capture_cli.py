@@ -136,3 +136,46 @@ def _capture_video(args: argparse.Namespace) -> int:
                                                           .tobytes()))
             print(f"  still {still} (residual max {100.0 * result.residual[i].max():.1f} cm)")
     return 0
+
+
+def _library_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("sources", nargs="+", help="capture set directories (each with its MANIFEST.csv)")
+    p.add_argument("--out", default="captures", help="the library directory (default: captures); a set of the "
+                                                     "same name is replaced once the new one is built and checked")
+
+
+@command("build-library", _library_args)
+def _build_library(args: argparse.Namespace) -> int:
+    """Retarget capture sets into the repository's capture library and check it (docs/captures.md)."""
+    from tqdm import tqdm
+
+    from harness.io import check_output_dir
+    from harness.motion.captures import MANIFEST_NAME, read_manifest
+    from harness.motion.library import build_library, check_library
+
+    check_output_dir(args.out)
+    total = sum(len(read_manifest(Path(s) / MANIFEST_NAME)) for s in args.sources)
+    with tqdm(total=total, unit="row", desc="retargeting", disable=None) as bar:
+        quality = build_library(args.sources, args.out, progress=bar.update)
+    for name, rows in quality.items():
+        print(f"{name}: {len(rows)} rows, mean residual {np.median([q['mean_cm'] for q in rows]):.2f} cm median, "
+              f"{max(q['mean_cm'] for q in rows):.2f} cm worst; worst maximum {max(q['max_cm'] for q in rows):.2f} cm")
+    counts = check_library(args.out)
+    size = sum(f.stat().st_size for f in Path(args.out).rglob("*") if f.is_file())
+    print(f"{args.out}: {sum(counts.values())} rows in {len(counts)} sets ({', '.join(counts)}), "
+          f"{size / 2**20:.1f} MB; checked")
+    return 0
+
+
+def _check_library_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("library", nargs="?", default="captures", help="the library directory (default: captures)")
+
+
+@command("check-library", _check_library_args)
+def _check_library(args: argparse.Namespace) -> int:
+    """Check the capture library without its sources: every row loads, each set has its terms, size bound."""
+    from harness.motion.library import check_library
+
+    counts = check_library(args.library)
+    print(f"{args.library}: " + ", ".join(f"{name} {n} rows" for name, n in counts.items()) + "; checked")
+    return 0

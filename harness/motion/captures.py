@@ -352,7 +352,10 @@ def library_motion(directory: Path, row: CaptureRow, fps: float) -> Motion:
     path = inside(directory, row.file, row.where("file"))
     stored = Motion.load(path)
     _check_range(path, row.start, row.end, stored.n_frames)
-    motion = row_motion(row, stored.qpos[row.start:row.end], stored.fps)
+    whole = (row.start, row.end) == (0, stored.n_frames)
+    # The stored motion names the row it was retargeted from (``stem:start-end``): the same demo as the source's.
+    motion = row_motion(row, stored.qpos[row.start:row.end], stored.fps).replace(
+        demo=stored.demo if whole else f"{stored.demo}[{row.start}:{row.end}]")
     return motion if abs(motion.fps - fps) < 1e-9 else motion.resample(fps)
 
 
