@@ -83,7 +83,7 @@ def main() -> None:
     _table("raw", log_post, true, conditions, 1.0, 0.0)
     belief = TrackerConfig().with_values(overrides).belief
     _table("the engine's settings", log_post, true, conditions, belief.posterior_temperature, belief.posterior_floor)
-    tau, eps = args.check if args.check else fit(log_post, true)
+    tau, eps = args.check if args.check else fit(log_post, true)[:2]
     _table("checked" if args.check else "fitted", log_post, true, conditions, tau, eps)
 
 

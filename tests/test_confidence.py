@@ -47,11 +47,29 @@ def test_the_fit_recovers_the_calibration_the_labels_were_drawn_from():
     for tau0, eps0 in ((8.0, 0.05), (25.0, 0.1)):
         p = calibrated(log_post, tau0, eps0)
         true = np.array([rng.choice(C, p=row) for row in p])
-        tau, eps = fit(log_post, true)
+        tau, eps, bias = fit(log_post, true)
         assert tau == pytest.approx(tau0, rel=0.12)
         assert eps == pytest.approx(eps0, abs=0.025)
+        assert bias == 0.0
     with pytest.raises(EngineError):
         fit(log_post[:1], true[:1])
+
+
+def test_the_fit_recovers_the_background_class_bias_the_labels_were_drawn_from():
+    """Labels drawn with a log prior of -40 nats on the last class (a background class): the fit finds the bias
+    (within the Monte-Carlo spread of 6000 draws) as well as the temperature, and the bias moves the background's
+    probability as its odds say."""
+    rng = np.random.default_rng(3)
+    N, C = 6000, 6
+    log_post = rng.normal(0, 150, (N, C))
+    bias0 = np.r_[np.zeros(C - 1), -40.0]
+    p = calibrated(log_post, 20.0, 0.02, bias0)
+    true = np.array([rng.choice(C, p=row) for row in p])
+    tau, eps, bias = fit(log_post, true, unknown=C - 1)
+    assert tau == pytest.approx(20.0, rel=0.12) and eps == pytest.approx(0.02, abs=0.025)
+    assert bias == pytest.approx(-40.0, abs=8.0)
+    even = np.zeros((1, 2))
+    assert calibrated(even, 1.0, 0.0, np.array([0.0, np.log(3.0)]))[0, 1] == pytest.approx(0.75)
 
 
 def _track(track_id, evidence, class_posterior):

@@ -26,7 +26,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from harness.engine.confidence import calibrated
+from harness.engine.confidence import calibrated, class_bias
 from harness.engine.config import BeliefSettings
 from harness.engine.estimate import Estimate
 from harness.engine.particle_filter import ParticleCloud
@@ -86,7 +86,8 @@ def both_passes(offline: Estimate, forward: FrameRecord, backward: FrameRecord, 
     both = FrameRecord(forward.index, forward.tracks + backward.tracks, None, 0.0)
     log_post = both.log_class_posterior()
     T = len(offline.qpos)
-    post = calibrated(log_post[None], belief.posterior_temperature, belief.posterior_floor)
+    post = calibrated(log_post[None], belief.posterior_temperature, belief.posterior_floor,
+                      class_bias(offline.classes, belief.unknown_bias))
     return replace(offline, class_posterior=np.repeat(post, T, axis=0),
                    raw_log_posterior=np.repeat(log_post[None], T, axis=0))
 

@@ -79,6 +79,7 @@ class BeliefSettings(_Section, name="belief"):
     primitive_switch: float = setting(0.0, "per frame", "[0, 1)", "probability of a primitive change (0: one)")
     posterior_temperature: float = setting(3.8, "", "> 0", "the class posterior's calibration: temperature ...")
     posterior_floor: float = setting(0.0229, "", "[0, 1)", "... and floor (harness.engine.confidence)")
+    unknown_bias: float = setting(0.0, "nats", "", "... and the background class's log prior odds (unknown)")
 
 
 @dataclass(frozen=True)

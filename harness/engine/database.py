@@ -33,7 +33,8 @@ import numpy as np
 
 from harness.engine.features import (N_FEATURES, measured_features, mirror_features, mirror_variances,
                                      motion_features)
-from harness.engine.training import fit_primitive, left_to_right, masked_moments  # noqa: F401 (left_to_right re-exported)
+from harness.engine.training import (fit_background, fit_primitive, left_to_right,  # noqa: F401 (left_to_right re-exported)
+                                     masked_moments)
 from harness.engine.variance_floor import group_floor, variance_floor
 from harness.engine.vector_math import EXP_MIN, FAST, exp_parts, log_normal
 from harness.errors import EngineError
@@ -42,6 +43,8 @@ from harness.motion.motion import Motion
 
 DEFAULT_STATES = 20
 _FORMAT = "harness-motion-database-1"
+#: The background class's label: the database's "none of these" (``MotionDatabase(background=True)``).
+UNKNOWN = "unknown"
 
 
 def mirror_chains(means: np.ndarray, covars: np.ndarray, transmat: np.ndarray, startprob: np.ndarray
@@ -65,14 +68,15 @@ class MotionDatabase:
     first, module docstring; the data source knows them, e.g. ``harness.motion.performer.CYCLIC``), ``n_iter``
     (Baum-Welch iterations), ``mirrored`` (each HMM also holds its mirror-image chain: ``S = 2K`` states, module
     docstring; else ``S = K``), ``floor`` (``(106,)`` variance floor per feature, kept by every M-step; default
-    ``variance_floor()``).
+    ``variance_floor()``), ``background`` (also a class ``unknown``: an ergodic HMM of every class's frames
+    pooled, ``training.fit_background``, the database's "none of these").
     Learned (after ``fit``): ``classes_`` (C,), ``cyclic_`` (C,) bool (whether each primitive's HMM started with
     a wrap), ``means_`` (C, S, 106), ``covars_`` (C, S, 106) diagonal variances, ``transmat_`` (C, S, S),
     ``startprob_`` (C, S), ``fps_``. Users of the HMMs take ``S`` from the arrays, not from ``n_states``.
     """
 
     def __init__(self, n_states: int = DEFAULT_STATES, cyclic: Iterable[str] = (), n_iter: int = 15,
-                 mirrored: bool = True, floor: np.ndarray | None = None):
+                 mirrored: bool = True, floor: np.ndarray | None = None, background: bool = False):
         if n_states < 2:
             raise EngineError(f"n_states must be >= 2, got {n_states}")
         if n_iter < 0:
@@ -81,6 +85,7 @@ class MotionDatabase:
         self.cyclic = tuple(cyclic)
         self.n_iter = int(n_iter)
         self.mirrored = bool(mirrored)
+        self.background = bool(background)
         self.floor = variance_floor() if floor is None else np.asarray(floor, dtype=float)
         if self.floor.shape != (N_FEATURES,) or not np.all(np.isfinite(self.floor)) or np.any(self.floor <= 0):
             raise EngineError(f"floor must be {N_FEATURES} positive variances, got shape {self.floor.shape}")
@@ -97,6 +102,9 @@ class MotionDatabase:
         if len(fps) != 1:
             raise EngineError(f"training motions must share one frame rate, got {sorted(fps)}")
         classes = sorted({m.label for m in motions})
+        if UNKNOWN in classes:
+            raise EngineError(f"{UNKNOWN!r} is the background class's label, not a primitive's")
+        classes += [UNKNOWN] if self.background else []
         K = self.n_states
         floor = self.floor
         means = np.empty((len(classes), K, N_FEATURES))
@@ -107,6 +115,10 @@ class MotionDatabase:
         masks = [np.broadcast_to(measured_features(m), f.shape) for m, f in zip(motions, feats)]
         population = self._population(motions if population is None else population)
         for c, label in enumerate(classes):
+            if label == UNKNOWN:
+                means[c], covars[c], trans[c], start[c] = fit_background(feats, masks, n_states=K, floor=floor,
+                                                                         population=population)
+                continue
             own = [i for i, m in enumerate(motions) if m.label == label]
             short = [len(feats[i]) for i in own if len(feats[i]) < K]
             if short:
@@ -136,6 +148,12 @@ class MotionDatabase:
     def _check_fitted(self) -> None:
         if not hasattr(self, "means_"):
             raise EngineError("the motion database is not trained: call fit() or MotionDatabase.load()")
+
+    @property
+    def primitives(self) -> np.ndarray:
+        """The classes that are primitives (all but the background class ``unknown``)."""
+        self._check_fitted()
+        return self.classes_[self.classes_ != UNKNOWN]
 
     @property
     def n_classes(self) -> int:
@@ -198,6 +216,7 @@ class MotionDatabase:
             "covars": self.covars_, "transmat": self.transmat_, "startprob": self.startprob_,
             "fps": np.array(self.fps_), "cyclic": np.array(self.cyclic, dtype=str),
             "n_iter": np.array(self.n_iter), "mirrored": np.array(self.mirrored), "floor": self.floor,
+            "background": np.array(self.background),
         }
 
     def save(self, path: str | Path) -> None:
@@ -214,7 +233,8 @@ class MotionDatabase:
                 # Files written before issue 24 were trained with the group floor alone.
                 floor = z["floor"].astype(float) if "floor" in z.files else group_floor()
                 db = cls(n_states=z["means"].shape[1] // (2 if mirrored else 1), cyclic=[str(c) for c in z["cyclic"]],
-                         n_iter=int(z["n_iter"]), mirrored=mirrored, floor=floor)
+                         n_iter=int(z["n_iter"]), mirrored=mirrored, floor=floor,
+                         background=bool(z["background"]) if "background" in z.files else False)
                 db.classes_ = z["classes"].astype(str)
                 db.cyclic_ = np.isin(db.classes_, list(db.cyclic))
                 db.means_, db.covars_ = z["means"].astype(float), z["covars"].astype(float)

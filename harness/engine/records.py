@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from harness.engine.confidence import calibrated
+from harness.engine.confidence import calibrated, class_bias
 from harness.engine.estimate import Estimate, smooth_trajectory
 from harness.engine.logsum import logsumexp
 from harness.errors import EngineError
@@ -82,10 +82,10 @@ def with_known_base(qpos: np.ndarray, known_pose: tuple[np.ndarray, np.ndarray] 
 
 
 def causal_estimate(records: list[FrameRecord], classes: np.ndarray, timing: dict, *, temperature: float = 1.0,
-                    floor: float = 0.0) -> Estimate:
+                    floor: float = 0.0, unknown_bias: float = 0.0) -> Estimate:
     """The engine's causal estimate from its frame records (module docstring); its class posterior is the
-    mixture's calibrated by ``temperature`` and ``floor`` (``confidence.calibrated``), the raw one kept as
-    ``raw_log_posterior``."""
+    mixture's calibrated by ``temperature``, ``floor`` and the background class's ``unknown_bias``
+    (``confidence.calibrated``), the raw one kept as ``raw_log_posterior``."""
     first = next((i for i, r in enumerate(records) if r.tracks), None)
     if first is None:
         raise EngineError("no frame had any flow: nothing to estimate")
@@ -96,8 +96,8 @@ def causal_estimate(records: list[FrameRecord], classes: np.ndarray, timing: dic
                      lead.origin, record.ms))
     rows = [(with_known_base(rows[0][0], r.known_pose),) + rows[0][1:7] + (0.0,) for r in records[:first]] + rows
     qpos, log_post, joint, fpos, fquat, n_tracks, leader, ms = (np.array(x) for x in zip(*rows))
-    return Estimate(classes, qpos, calibrated(log_post, temperature, floor), joint, fpos, fquat, n_tracks, leader,
-                    ms, timing, raw_log_posterior=log_post)
+    post = calibrated(log_post, temperature, floor, class_bias(classes, unknown_bias))
+    return Estimate(classes, qpos, post, joint, fpos, fquat, n_tracks, leader, ms, timing, raw_log_posterior=log_post)
 
 
 def track_path(records: list[FrameRecord], track_id: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

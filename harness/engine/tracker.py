@@ -191,7 +191,8 @@ class Tracker:
         n, belief, settings = len(self.records), self.config.belief, self.config.offline
         causal = causal_estimate(self.records, self.model.db.classes_.copy(),
                                  {k: 1e3 * v / max(n, 1) for k, v in self._timing.items()},
-                                 temperature=belief.posterior_temperature, floor=belief.posterior_floor)
+                                 temperature=belief.posterior_temperature, floor=belief.posterior_floor,
+                                 unknown_bias=belief.unknown_bias)
         stream = belief.primitive_switch > 0
         if settings.backward_pass and not stream and not self._sequence[2] and not self.source.fixed:
             offline = self._backward_pass()

@@ -174,3 +174,29 @@ def state_posteriors(means: np.ndarray, covars: np.ndarray, transmat: np.ndarray
     hmm.startprob_, hmm.transmat_, hmm.means_, hmm.covars_ = startprob, transmat, means, covars
     hmm._mask = None if mask is None else np.broadcast_to(mask, features.shape)
     return hmm.predict_proba(features)
+
+
+def fit_background(features: list[np.ndarray], masks: list[np.ndarray], *, n_states: int, floor: np.ndarray,
+                   population: tuple[np.ndarray, np.ndarray], dwell: float = 5.0,
+                   seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A background ("none of these") HMM of every class's frames pooled: ``n_states`` states from k-means of
+    the frames' angles (unmeasured angles at the population mean), each state's moments over its frames'
+    measured features (variances floored), ergodic transitions (stay ``1 - 1/dwell``, the rest shared by the
+    other states) and a uniform start. It explains any motion made of the database's postures in any order, so
+    it loses to a primitive's chain on that primitive's motions and wins on motions no chain follows. Returns
+    means ``(K, F)``, variances ``(K, F)``, transitions ``(K, K)`` and start ``(K,)``."""
+    from scipy.cluster.vq import kmeans2
+
+    from harness.engine.features import ANGLES
+
+    K = n_states
+    x, m = np.concatenate(features), np.concatenate(masks)
+    angles = np.where(m[:, ANGLES], x[:, ANGLES], population[0][ANGLES])
+    scale = np.sqrt(np.maximum(angles.var(axis=0), floor[ANGLES]))
+    _, labels = kmeans2(angles / scale, K, minit="++", seed=np.random.default_rng(seed))
+    weights = (labels[None] == np.arange(K)[:, None]).astype(float)
+    means, var, _ = masked_moments(x, m.astype(float), weights, (np.repeat(population[0][None], K, 0),
+                                                                 np.repeat(population[1][None], K, 0)))
+    trans = np.full((K, K), (1.0 / dwell) / (K - 1))
+    np.fill_diagonal(trans, 1.0 - 1.0 / dwell)
+    return means, np.maximum(var, floor), trans, np.full(K, 1.0 / K)

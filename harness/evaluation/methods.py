@@ -38,6 +38,7 @@ import numpy as np
 
 from harness.body import BodyModel, SurfacePoints, body_origins
 from harness.engine import Estimate, MotionDatabase, Tracker, TrackerConfig, motion_features, recognize_features
+from harness.engine.database import UNKNOWN
 from harness.engine.features import measured_features
 from harness.engine.recovery import fit_without_database
 from harness.engine.switching import STREAM_MIN_FRAMES, online_labels, recognize_stream_features
@@ -50,7 +51,7 @@ from harness.scene.simulate import GroundTruth
 from harness.scene.spec import SceneSpec
 
 RECOGNITION_COLUMNS = ("class_pred", "correct", "frame_accuracy", "time_to_correct_s", "log_p_true",
-                       "accuracy_curve", "confidence", "posterior_final")
+                       "accuracy_curve", "confidence", "posterior_final", "p_unknown")
 RECOVERY_COLUMNS = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", "pa_mpjpe_mm",
                     "pa_mpjpe17_mm", "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m", "base_rot_err_deg",
                     "heading_err_deg", "tilt_err_deg", "reproj_px", "heading_err_twin_deg", "heading_curve")
@@ -197,7 +198,15 @@ def recognition_scores(post: np.ndarray, classes, label: str, fps: float) -> dic
     final = np.asarray(post, dtype=float)[-1]
     return out | {"log_p_true": metrics.log_p_true(post, classes, label),
                   "accuracy_curve": accuracy_curve(post, classes, label), "confidence": float(final.max()),
-                  "posterior_final": {str(c): float(p) for c, p in zip(classes, final)}}
+                  "posterior_final": {str(c): float(p) for c, p in zip(classes, final)},
+                  "p_unknown": p_unknown(final, classes)}
+
+
+def p_unknown(final: np.ndarray, classes) -> float:
+    """The final probability of the database's background class ``unknown`` ("none of these"), NaN for a
+    database without one."""
+    classes = [str(c) for c in classes]
+    return float(final[classes.index(UNKNOWN)]) if UNKNOWN in classes else float("nan")
 
 
 def segment_list(labels) -> list[list]:
@@ -218,7 +227,7 @@ def open_set_scores(post: np.ndarray, classes) -> dict:
     final = np.asarray(post, dtype=float)[-1]
     return not_produced(RECOGNITION_COLUMNS) | {
         "class_pred": str(classes[int(np.argmax(final))]), "confidence": float(final.max()),
-        "posterior_final": {str(c): float(p) for c, p in zip(classes, final)}}
+        "posterior_final": {str(c): float(p) for c, p in zip(classes, final)}, "p_unknown": p_unknown(final, classes)}
 
 
 def _recognition(inputs: RunInputs, post: np.ndarray, fps: float) -> dict:

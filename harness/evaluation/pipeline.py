@@ -155,8 +155,8 @@ def database_key(cfg: Scenario, training: list[Motion]) -> dict:
     """What a database depends on (its cache key): the identities of its training motions, the HMM settings
     (states, cyclic classes, both-handed or not) and the code version."""
     db = cfg.database
-    return {"states": db.states, "cyclic": list(CYCLIC), "mirrored": db.mirrored, "format": DATABASE_FORMAT,
-            "code": code_version(), "training": [training_identity(m) for m in training]}
+    return {"states": db.states, "cyclic": list(CYCLIC), "mirrored": db.mirrored, "background": db.background,
+            "format": DATABASE_FORMAT, "code": code_version(), "training": [training_identity(m) for m in training]}
 
 
 @lru_cache(maxsize=8)
@@ -170,8 +170,8 @@ def database(cfg: Scenario, test: Motion | None, cache_dir: str | Path) -> tuple
     path = path_for_key(Path(cache_dir) / "databases", database_key(cfg, training))
 
     def build():
-        return MotionDatabase(n_states=cfg.database.states, cyclic=CYCLIC,
-                              mirrored=cfg.database.mirrored).fit(training)
+        return MotionDatabase(n_states=cfg.database.states, cyclic=CYCLIC, mirrored=cfg.database.mirrored,
+                              background=cfg.database.background).fit(training)
 
     cached(path, build, lambda obj, fh: np.savez(fh, **obj.to_arrays()), lambda p: None)
     return _stored_database(str(path)), str(path)

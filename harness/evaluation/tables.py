@@ -452,6 +452,40 @@ def open_set(rows: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out, columns=cols)
 
 
+def auroc(positive: np.ndarray, negative: np.ndarray) -> float:
+    """The area under the ROC curve of scores that should be higher for ``positive`` than for ``negative``: the
+    probability that a random positive outscores a random negative, ties counting half (NaN without both)."""
+    positive, negative = np.asarray(positive, dtype=float), np.asarray(negative, dtype=float)
+    if not len(positive) or not len(negative):
+        return math.nan
+    greater = (positive[:, None] > negative[None]).mean()
+    ties = (positive[:, None] == negative[None]).mean()
+    return float(greater + 0.5 * ties)
+
+
+def unknown_detection(rows: pd.DataFrame) -> pd.DataFrame:
+    """"None of these", per condition and recognising method whose database has a background class (a finite
+    ``p_unknown``): runs of known classes and open-set runs, the AUROC of ``p_unknown`` between them, and the
+    shares of each answered ``unknown``."""
+    cols = ["condition", "method", "known_runs", "open_set_runs", "auroc", "known_answered_unknown",
+            "open_set_answered_unknown"]
+    g = recognising(rows)
+    if "p_unknown" not in g or not len(g) or not pd.to_numeric(g["p_unknown"], errors="coerce").notna().any():
+        return pd.DataFrame(columns=cols)
+    out = []
+    for (cond, method), sub in g.groupby(["condition", "method"], sort=False):
+        p = pd.to_numeric(sub["p_unknown"], errors="coerce")
+        if not p.notna().any():
+            continue
+        unknown = sub["open_set"].fillna(False).astype(bool) if "open_set" in sub else pd.Series(False, sub.index)
+        answered = sub["class_pred"].astype(str) == "unknown"
+        out.append({"condition": cond, "method": method, "known_runs": int((~unknown).sum()),
+                    "open_set_runs": int(unknown.sum()), "auroc": auroc(p[unknown], p[~unknown]),
+                    "known_answered_unknown": float(answered[~unknown].mean()) if (~unknown).any() else math.nan,
+                    "open_set_answered_unknown": float(answered[unknown].mean()) if unknown.any() else math.nan})
+    return pd.DataFrame(out, columns=cols)
+
+
 def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], classes: list[str],
                  n_boot: int = N_BOOT, seed: int = 0) -> dict[str, pd.DataFrame]:
     """Write ``summary``, ``headline``, ``per_class``, ``class_accuracy``, ``answers``, ``confusion``,
@@ -462,8 +496,11 @@ def write_tables(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], clas
     ``by_style`` (recognition per set and style) and ``open_set`` (the motions of no class the database has,
     which every other table leaves out). Returns the tables by name."""
     out_dir = Path(out_dir)
+    detection = unknown_detection(by_test_set(rows))
     rows, unknown = known_and_open_set(rows)
     extra = {"open_set": open_set(unknown)} if len(unknown) else {}
+    if len(detection):
+        extra["unknown_detection"] = detection
     for column, name in (("source", "by_source"), ("style", "by_style")):
         if column in rows and rows[column].fillna("").astype(str).ne("").any() and (
                 column == "style" or rows[column].nunique() > 1):
