@@ -246,11 +246,11 @@ def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunctio
         write_text_atomic(results_dir / "scenario.json", _scenario_json(scenario, digest))
         todo = [r for r in runs if r.key not in journal]
         if todo:
-            from tqdm import tqdm
+            from harness.evaluation.progress import progress as progress_bar
 
             finished = (_execute_dask(todo, run_fn, client) if client is not None
                         else _execute_local(todo, run_fn, jobs))
-            bar = tqdm(total=len(todo), desc=scenario.name, unit="run", disable=not progress, leave=False)
+            bar = progress_bar(len(todo), scenario.name, enabled=progress)     # a live bar on a terminal only
             try:
                 for run, rows in finished:
                     journal.append(run.key, _checked_rows(run, rows))
