@@ -78,6 +78,13 @@ def _run(scenario, args, limit=None):
                         cache_dir=Path(args.results) / "cache", fresh=args.fresh, progress=not args.quiet)
     report = make_report(scenario, out, rows)
     print(f"{scenario.name}: {rows['run_key'].nunique() if len(rows) else 0} runs -> {report}")
+    if "failed" in rows:
+        from harness.evaluation.report import failed_rows
+
+        failed = failed_rows(rows)
+        if len(failed):
+            print(f"{scenario.name}: {len(failed)} rows failed (method "
+                  f"{', '.join(dict.fromkeys(failed['method']))}): listed in {report}", file=sys.stderr)
     return out
 
 

@@ -30,7 +30,8 @@ import numpy as np
 from harness.body import nominal_body
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
 from harness.evaluation.cache import cached, path_for_key
-from harness.evaluation.methods import METHODS, EngineRuns, RunInputs, score, segment_list
+from harness.evaluation.external import resolve
+from harness.evaluation.methods import EngineRuns, Method, MethodError, RunInputs, run_method, segment_list
 from harness.evaluation.runner import RunError, RunSpec
 from harness.evaluation.scenario import Scenario, scene_spec, tracker_config
 from harness.evaluation.viewing import viewing_columns
@@ -228,11 +229,26 @@ def run_one(run: RunSpec) -> list[dict]:
     rows = []
     for name in run.config.methods:
         t0 = time.perf_counter()
-        m = METHODS[name]
-        scores = score(m, m.estimate(inputs, engine), inputs)
+        m = _method(run, name)
+        scores = run_method(m, inputs, engine)
         ms = 1e3 * (time.perf_counter() - t0) / max(len(obs), 1)
         rows.append({"method": name} | common | scores | {"ms_per_frame": ms})
     return rows
+
+
+def _method(run: RunSpec, name: str) -> Method:
+    """The run's method ``name``; a method from outside the package must be the code the run was planned with
+    (its version stamped on the scenario at load), as the harness's own code must (``run_inputs``)."""
+    try:
+        m = resolve(name)
+    except MethodError as exc:
+        raise RunError(f"run {run.key}: {exc}") from None
+    planned = run.config.method_versions.get(name, "")
+    if m.version != planned:
+        raise RunError(f"run {run.key}: method {name!r} is version {m.version or 'built in'} in this process, the "
+                       f"run was planned with {planned or 'a built-in method'} (its code changed: evaluate again "
+                       f"with --fresh)")
+    return m
 
 
 __all__ = ["clear_caches", "database", "database_key", "fresh_tracker", "run_inputs", "run_one", "test_motion",

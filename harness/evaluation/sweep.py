@@ -28,7 +28,8 @@ from harness.settings import unknown_key
 UNSWEEPABLE = {"seed": "the scenario seed is shared by every condition (common random numbers); raise repeats for "
                        "independent draws",
                "database.capture_dir": "a capture set is resolved once per scenario",
-               "database.manifest": "a capture set is resolved once per scenario"}
+               "database.manifest": "a capture set is resolved once per scenario",
+               "method_versions": "stamped from the methods' code at load, not written in a scenario"}
 
 
 def set_dotted(raw: dict, key: str, value: Any, where: str = "<scenario>") -> dict:
