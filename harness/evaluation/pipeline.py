@@ -188,6 +188,25 @@ def clear_caches() -> None:
 
 # --- one run --------------------------------------------------------------------------------------------
 
+def check_classes(run: RunSpec, classes, labels: np.ndarray | None) -> None:
+    """``RunError`` when the run's class (or a stream's label) has no training demonstration in the split."""
+    missing = sorted(set(labels) - set(classes) - {TRANSITION}) if labels is not None else (
+        [] if run.test_class in classes else [run.test_class])
+    if missing:
+        raise RunError(f"run {run.key}: class {missing[0]!r} has no training demonstration in this split")
+
+
+def play(run: RunSpec, motion: Motion):
+    """The test motion played in the run's scene (the scene spec drawn from the run's scene generator, once):
+    ``(spec, observation, ground truth, the observed subject's body, the motion as that subject performed it)``."""
+    scene_rng = named_generator(run.seed, "scene")
+    spec = scene_spec(run.config, scene_rng)
+    obs, truth = simulate(motion, spec, scene_rng, nominal_body())
+    subject = nominal_body() if np.all(truth.segment_scale == 1.0) else nominal_body().scaled(truth.segment_scale)
+    observed = Motion(truth.qpos, motion.fps, motion.label, motion.subject, motion.demo, motion.source)
+    return spec, obs, truth, subject, observed
+
+
 def run_inputs(run: RunSpec) -> RunInputs:
     """Everything the methods of one run use (also what ``harness run-video`` re-creates): the test motion
     played in the run's scene (the scene spec drawn from the run's scene generator, once), the database, the
@@ -200,15 +219,8 @@ def run_inputs(run: RunSpec) -> RunInputs:
     motion = test_motion(run) if stream is None else stream.motion
     db, db_path = database(cfg, motion, run.cache_dir)
     labels = None if stream is None else stream.labels
-    missing = sorted(set(labels) - set(db.classes_) - {TRANSITION}) if stream is not None else (
-        [] if run.test_class in db.classes_ else [run.test_class])
-    if missing:
-        raise RunError(f"run {run.key}: class {missing[0]!r} has no training demonstration in this split")
-    scene_rng = named_generator(run.seed, "scene")
-    spec = scene_spec(cfg, scene_rng)
-    obs, truth = simulate(motion, spec, scene_rng, nominal_body())
-    subject = nominal_body() if np.all(truth.segment_scale == 1.0) else nominal_body().scaled(truth.segment_scale)
-    observed = Motion(truth.qpos, motion.fps, motion.label, motion.subject, motion.demo, motion.source)
+    check_classes(run, db.classes_, labels)
+    spec, obs, truth, subject, observed = play(run, motion)
     tc = tracker_config(cfg)
     return RunInputs(key=run.key, label=run.test_class, classes=tuple(db.classes_), body=nominal_body(),
                      subject=subject, db=db, motion=observed, obs=obs, truth=truth,
@@ -251,5 +263,5 @@ def _method(run: RunSpec, name: str) -> Method:
     return m
 
 
-__all__ = ["clear_caches", "database", "database_key", "fresh_tracker", "run_inputs", "run_one", "test_motion",
-           "test_stream", "training_identity", "training_motions"]
+__all__ = ["check_classes", "clear_caches", "database", "database_key", "fresh_tracker", "play", "run_inputs",
+           "run_one", "test_motion", "test_stream", "training_identity", "training_motions"]
