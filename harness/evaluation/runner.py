@@ -187,7 +187,7 @@ def connect(address: str, timeout_s: float | None = None):
         from dask.distributed import Client
     except ImportError:
         raise RunError(f"--scheduler {address}: dask.distributed is not installed "
-                       f"(pip install 'harness[dask]')") from None
+                       f"(pip install 'monocular-motion-harness[dask]')") from None
     timeout = SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s
     try:
         return Client(address, timeout=f"{timeout}s")
