@@ -1,9 +1,9 @@
 """The method ``flow_knn``: the class posterior at every frame from the window of flows seen so far (causal), by the
 k nearest training windows (``flowclf.train``). It recognises and does not recover the body.
 
-Posterior of class ``c`` at frame ``t``: ``(votes_c + ALPHA) / (K + C ALPHA)`` over the ``K`` nearest training
-windows of the database's classes (a class the model never saw gets ``ALPHA`` only); before any frame has enough
-flows, every class alike.
+Posterior of class ``c`` at frame ``t``: ``votes_c + ALPHA``, normalised over the database's ``C`` classes, where
+``votes_c`` counts the ``K`` nearest training windows of class ``c`` (neighbours of a class the database lacks are
+dropped; a class the model never saw gets ``ALPHA`` alone); before any frame has enough flows, every class alike.
 """
 
 from __future__ import annotations
