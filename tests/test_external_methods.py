@@ -169,8 +169,11 @@ def test_an_installed_method_is_found_by_its_entry_point_name(tmp_path, monkeypa
     assert "method_version" not in rows["joint_space"]     # built-in rows: the package's version is in the hash
 
 
-def test_method_versions_cannot_be_written_in_a_scenario():
-    with pytest.raises(ScenarioError, match="method_versions: stamped from the methods' code at load"):
-        parse_scenario({**SMALL, "method_versions": {"x:y": "1"}}, "s.yaml")
+def test_method_versions_are_always_those_of_the_code():
+    """A stored scenario (scenario.json, read again by run-video) carries the stamps of when it was stored; loaded,
+    they are the code's now, whatever was written."""
+    stamped = parse_scenario({**SMALL, "methods": ["outside_methods:uniform"], "method_versions": {"x:y": "1"}})
+    assert stamped.method_versions == {"outside_methods:uniform": external.source_version("outside_methods")}
+    assert parse_scenario({**SMALL, "method_versions": {"x:y": "1"}}).method_versions == {}
     with pytest.raises(ScenarioError, match="not sweepable"):
         parse_scenario({**SMALL, "sweep": {"method_versions": [{}]}}, "s.yaml")

@@ -220,9 +220,9 @@ def parse_scenario(raw: Any, where: str = "<scenario>") -> Scenario:
         if not isinstance(values, list):
             raise ScenarioError(f"{where}: sweep[{key!r}]: must be a list of values, got {short(values)}")
     sweep = sweep or {}
-    if "method_versions" in raw:
-        raise ScenarioError(f"{where}: method_versions: stamped from the methods' code at load, not written in a "
-                            f"scenario")
+    # The outside methods' versions are the harness's own stamp, always taken from the code (a stored
+    # scenario.json read again, by run-video, carries the stamps of when it was stored).
+    raw = {k: v for k, v in raw.items() if k != "method_versions"}
     if "methods" not in raw:
         raw = raw | {"methods": list(default_methods())}
     if not sweep:
