@@ -2,12 +2,9 @@
 to their own rows, their code's version stamped so that changed code is never mixed with old rows."""
 
 import json
-import os
-import sys
 import textwrap
 from dataclasses import replace
 
-import numpy as np
 import pandas as pd
 import pytest
 
@@ -28,7 +25,7 @@ def _forget():
     external.forget()
 
 
-def _evaluate(tmp_path, methods, capsys=None) -> tuple[int, pd.DataFrame]:
+def _evaluate(tmp_path, methods) -> tuple[int, pd.DataFrame]:
     scenario = tmp_path / "outside.yaml"
     scenario.write_text(json.dumps({**SMALL, "methods": methods}))
     code = main(["evaluate", str(scenario), "--results", str(tmp_path / "results"), "--quiet"])
