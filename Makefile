@@ -6,13 +6,15 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 
-.PHONY: setup test evaluate regress rebaseline check bench library clean clean-cache
+.PHONY: setup test evaluate regress rebaseline example check bench library clean clean-cache
 
 setup: $(STAMP)
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
+	@# the distribution was called `harness` before (an unrelated project's name on PyPI): leave one install of it
+	$(PY) -m pip uninstall --quiet --yes harness 2>/dev/null || true
 	$(PY) -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
@@ -31,6 +33,16 @@ regress: $(STAMP)
 # Deliberately accept the current ci numbers as the new baseline (review the diff before committing it).
 rebaseline: $(STAMP)
 	$(PY) -m harness rebaseline --scenario scenarios/ci.yaml --baseline results/baseline --fresh
+
+# The worked example of a method from outside the package (examples/flowclf, docs/methods.md): export runs of
+# other seeds and performers, learn the classifier from them, install it, score it beside the engine by both of
+# its names (entry point and module:function), and check the two give the same rows. CI runs it.
+example: $(STAMP)
+	$(PY) -m pip install --quiet -e examples/flowclf
+	$(PY) -m harness export examples/flowclf/train.yaml --out results/flowclf_train --jobs 2 --fresh
+	$(PY) -m flowclf.train results/flowclf_train --out examples/flowclf/flowclf/model.npz
+	$(PY) -m harness evaluate examples/flowclf/compare.yaml --jobs 2 --fresh
+	$(PY) examples/flowclf/check.py results/flowclf_compare
 
 # Acceptance checks that exit non-zero on a miss (scene geometry and rendering, the performer's nearest-class
 # requirement), the retargeting table over the sample captures in ../shared/mocap/cmu and ../shared/mocap/bandai,

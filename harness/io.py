@@ -91,13 +91,28 @@ def check_input_file(path: str | Path, error: type[Exception], kind: str, max_by
     return st.st_size
 
 
+READ_CHUNK_BYTES = 16 * 2**20    # what a file that grew after its size was checked is read on in
+
+
 def read_input_bytes(path: str | Path, error: type[Exception], kind: str, max_bytes: int) -> bytes:
     """The bytes of a regular file of at most ``max_bytes`` (``check_input_file``), read without following a
-    file that grew since: at most ``max_bytes + 1`` bytes are read."""
-    check_input_file(path, error, kind, max_bytes)
+    file that grew since: at most ``max_bytes + 1`` bytes are read.
+
+    The first read asks for the size just checked (plus one byte, to see growth), never for ``max_bytes``:
+    Python allocates a read's whole request up front, so ``read(max_bytes + 1)`` of a 4 GiB bound fails under
+    an address-space limit (``ulimit -v``) whatever the file's size. A file that grew is read on in chunks."""
+    size = check_input_file(path, error, kind, max_bytes)
     try:
         with open(path, "rb") as fh:
-            data = fh.read(max_bytes + 1)
+            data = fh.read(size + 1)
+            if len(data) > size:            # it grew since it was measured: on in bounded chunks
+                grown = bytearray(data)
+                while len(grown) <= max_bytes:
+                    chunk = fh.read(min(READ_CHUNK_BYTES, max_bytes + 1 - len(grown)))
+                    if not chunk:
+                        break
+                    grown += chunk
+                data = bytes(grown)
     except OSError as exc:
         raise error(f"{path}: cannot be read ({_why(exc)})") from None
     if len(data) > max_bytes:

@@ -55,7 +55,7 @@ def _error(raw) -> str:
         ({"name": "x", "test": {"split": "all"}}, "s.yaml: test.split: 'all' is now test.split: none"),
         (
             {"name": "x", "methods": ["full", "best"]},
-            "s.yaml: methods[1]: unknown method 'best' (valid: full, full_smoothed, gt_base",
+            "s.yaml: methods[1]: unknown method 'best' (built in: full, full_smoothed, gt_base",
         ),
         ({"seed": 3}, "s.yaml: name: required key is missing"),
     ],

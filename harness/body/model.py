@@ -8,6 +8,7 @@ frame, MuJoCo's convention for free joints), then the 50 angle rates.
 
 from __future__ import annotations
 
+import sys
 from functools import lru_cache
 from pathlib import Path
 
@@ -17,7 +18,10 @@ import numpy as np
 from harness.body.tree import KinematicTree
 from harness.errors import ModelError, UnknownNameError
 
-DEFAULT_MODEL_PATH = Path(__file__).resolve().parents[2] / "models" / "humanoid56.xml"
+_CHECKOUT_MODEL = Path(__file__).resolve().parents[2] / "models" / "humanoid56.xml"
+# A wheel (``pip install .``, not editable) puts the model beside the environment (pyproject.toml's data-files).
+_INSTALLED_MODEL = Path(sys.prefix) / "share" / "monocular-motion-harness" / "models" / "humanoid56.xml"
+DEFAULT_MODEL_PATH = _CHECKOUT_MODEL if _CHECKOUT_MODEL.is_file() else _INSTALLED_MODEL
 #: The 50 hinges of humanoid56 in model order (``docs/humanoid56.md``); ``BodyModel.joint_names`` reads them
 #: from the compiled model (tests check the two agree).
 JOINT_NAMES: tuple[str, ...] = (

@@ -1,4 +1,4 @@
-"""Commands: ``evaluate``, ``report``, ``compare``, ``regress``, ``rebaseline`` (registered with
+"""Commands: ``evaluate``, ``export``, ``report``, ``compare``, ``regress``, ``rebaseline`` (registered with
 ``harness.cli.command``)."""
 
 from __future__ import annotations
@@ -79,6 +79,13 @@ def _run(scenario, args, limit=None):
                         cache_dir=Path(args.results) / "cache", fresh=args.fresh, progress=not args.quiet)
     report = make_report(scenario, out, rows)
     print(f"{scenario.name}: {rows['run_key'].nunique() if len(rows) else 0} runs -> {report}")
+    if "failed" in rows:
+        from harness.evaluation.report import failed_rows
+
+        failed = failed_rows(rows)
+        if len(failed):
+            print(f"{scenario.name}: {len(failed)} rows failed (method "
+                  f"{', '.join(dict.fromkeys(failed['method']))}): listed in {report}", file=sys.stderr)
     return out
 
 
@@ -86,6 +93,29 @@ def _run(scenario, args, limit=None):
 def _evaluate(args: argparse.Namespace) -> int:
     """Run a scenario (resuming finished runs), then write its tables, plots and report."""
     _run(_load(args.scenario, args.mocap_dir), args, args.limit)
+    return 0
+
+
+def _export_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", help="scenario YAML file")
+    p.add_argument("--out", required=True, metavar="DIR", help="the dataset's directory (resumes an export there)")
+    _common(p)
+    p.add_argument("--jobs", type=int, default=1, metavar="N", help="local worker processes (default 1)")
+    p.add_argument("--fresh", action="store_true", help="set aside runs exported by an older version and start again")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--limit", type=int, default=None, metavar="N", help="only the first N runs")
+
+
+@command("export", _export_args)
+def _export(args: argparse.Namespace) -> int:
+    """Write every run's observation, ground truth and metadata as files with an index (docs/export.md)."""
+    from harness.evaluation.export import INDEX_NAME, export
+
+    _check_jobs(args)
+    scenario = _load(args.scenario, args.mocap_dir)
+    index = export(scenario, args.out, Path(args.results) / "cache", jobs=args.jobs, limit=args.limit,
+                   fresh=args.fresh, progress=not args.quiet)
+    print(f"{scenario.name}: {len(index)} runs -> {Path(args.out) / INDEX_NAME}")
     return 0
 
 

@@ -13,20 +13,23 @@ bit-identically through ``repr``.
 from __future__ import annotations
 
 import fcntl
+import itertools
 import json
 import math
 import os
 import re
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from harness.errors import HarnessError
-from harness.io import read_input_bytes
+from harness.io import check_input_file
 
 JOURNAL_NAME = "runs.jsonl"
 MAX_JOURNAL_BYTES = 4 * 2**30      # 100,000 runs (the plan's limit) of five methods are about 2 GB
+MAX_LINE_BYTES = 64 * 2**20        # one run's record (a stream's rows of every method are tens of kB)
 # ``c000/r000/walk/d008``, or with a capture set's name ``c000/r000/cmu/walk/d008``; no '..' part
 RUN_KEY = re.compile(r"^c\d{3,}/r\d{3,}/(?:(?!\.\.?/)[^/\x00]+/)?(?!\.\.?/)[^/\x00]+/d\d{3,}$")
 
@@ -45,38 +48,66 @@ def _plain(value: Any) -> Any:
 
 
 def read(path: str | Path, repair: bool = True) -> list[dict]:
-    """Records of a journal, in file order. A torn last line (no newline) is dropped, and cut from the file
-    when ``repair``, but only once every complete line has been read and found well formed: a journal that is
-    refused (``ResultsError`` naming the line: not JSON, not a record, not a regular file, too large) is never
-    modified."""
+    """Records of a journal, in file order (``records``, collected)."""
+    return list(records(path, repair))
+
+
+def records(path: str | Path, repair: bool = True) -> Iterator[dict]:
+    """The records of a journal one at a time, in file order, read line by line (a journal of 100,000 runs is
+    about 2 GB: never held whole). A torn last line (no newline) is dropped, and cut from the file when
+    ``repair``, but only once every complete line has been read and found well formed: a journal that is
+    refused (``ResultsError`` naming the line: not JSON, not a record, not a regular file, too large, a line
+    over ``MAX_LINE_BYTES``) is never modified."""
     path = Path(path)
     if not os.path.lexists(path):
-        return []
-    data = read_input_bytes(path, ResultsError, "journal", MAX_JOURNAL_BYTES)
-    end = data.rfind(b"\n") + 1
-    records = []
-    for i, line in enumerate(data[:end].splitlines()):
-        if not line.strip():
-            continue
+        return
+    check_input_file(path, ResultsError, "journal", MAX_JOURNAL_BYTES)
+    try:
+        fh = open(path, "rb")
+    except OSError as exc:
+        raise ResultsError(f"{path}: cannot be read ({exc.strerror})") from None
+    with fh:
+        end = 0                   # the offset after the last complete line
+        for i in itertools.count():
+            try:
+                line = fh.readline(MAX_LINE_BYTES + 1)
+            except OSError as exc:
+                raise ResultsError(f"{path}: cannot be read ({exc.strerror})") from None
+            if not line:
+                break
+            if len(line) > MAX_LINE_BYTES:
+                raise ResultsError(f"{path}: line {i + 1}: longer than {MAX_LINE_BYTES} bytes (not a run's record); "
+                                   f"move the file away to start again")
+            if not line.endswith(b"\n"):           # torn: a write cut short by a kill
+                break
+            if end + len(line) > MAX_JOURNAL_BYTES:
+                raise ResultsError(f"{path}: too large for a journal file (at most {MAX_JOURNAL_BYTES} bytes)")
+            end += len(line)
+            if line.strip():
+                yield _parse(path, i, line)
+        torn = fh.seek(0, os.SEEK_END) > end
+    if torn and repair:
         try:
-            rec = json.loads(line)
-        except (ValueError, RecursionError) as exc:     # not JSON, not UTF-8, nested too deep, 5000 digits
-            why = exc.msg if isinstance(exc, json.JSONDecodeError) else (
-                "nested too deeply" if isinstance(exc, RecursionError) else "not UTF-8 text or a malformed number")
-            raise ResultsError(f"{path}: line {i + 1}: not a JSON record ({why}); move the file away to "
-                               f"start again") from None
-        problem = _record_problem(rec)
-        if problem:
-            raise ResultsError(f"{path}: line {i + 1}: {problem}; move the file away to start again")
-        records.append(rec)
-    if end < len(data) and repair:
-        try:
-            with open(path, "r+b") as fh:
-                fh.truncate(end)
-                os.fsync(fh.fileno())
+            with open(path, "r+b") as out:
+                out.truncate(end)
+                os.fsync(out.fileno())
         except OSError as exc:
             raise ResultsError(f"{path}: cannot cut its torn last line ({exc.strerror})") from None
-    return records
+
+
+def _parse(path: Path, i: int, line: bytes) -> dict:
+    """Line ``i`` (0-based) of a journal as a record; ``ResultsError`` naming the line otherwise."""
+    try:
+        rec = json.loads(line)
+    except (ValueError, RecursionError) as exc:     # not JSON, not UTF-8, nested too deep, 5000 digits
+        why = exc.msg if isinstance(exc, json.JSONDecodeError) else (
+            "nested too deeply" if isinstance(exc, RecursionError) else "not UTF-8 text or a malformed number")
+        raise ResultsError(f"{path}: line {i + 1}: not a JSON record ({why}); move the file away to "
+                           f"start again") from None
+    problem = _record_problem(rec)
+    if problem:
+        raise ResultsError(f"{path}: line {i + 1}: {problem}; move the file away to start again")
+    return rec
 
 
 def _record_problem(rec: Any) -> str | None:
@@ -90,6 +121,16 @@ def _record_problem(rec: Any) -> str | None:
     if not isinstance(rec["rows"], list) or not all(isinstance(r, dict) for r in rec["rows"]):
         return "'rows' must be a list of mappings"
     return None
+
+
+def _index(path: Path, repair: bool = True) -> tuple[list[str], set[str]]:
+    """The run keys of a journal's records (file order) and their scenario hashes, streamed: what an open
+    journal needs, without the rows."""
+    keys, hashes = [], set()
+    for rec in records(path, repair):
+        keys.append(rec["key"])
+        hashes.add(rec["hash"])
+    return keys, hashes
 
 
 class Journal:
@@ -106,7 +147,7 @@ class Journal:
         self.hash = scenario_hash
         self._lock = self._fh = None
         lock_path = self.directory / (JOURNAL_NAME + ".lock")
-        self._check_stale(read(self.path, repair=False), fresh)
+        self._check_stale(*_index(self.path, repair=False), fresh)
         if os.path.lexists(lock_path) and not lock_path.is_file():
             raise ResultsError(f"{lock_path}: is not a regular file (the evaluation's lock)")
         try:
@@ -121,14 +162,12 @@ class Journal:
             self._lock = None
             raise ResultsError(f"{self.directory}: another evaluation is writing these results") from None
         try:
-            records = read(self.path)          # again, under the lock: cuts a torn last line
-            stale = self._check_stale(records, fresh)
+            keys, hashes = _index(self.path)   # again, under the lock: cuts a torn last line
+            stale = self._check_stale(keys, hashes, fresh)
             if stale:
                 self.path.rename(self.directory / f"runs.stale-{stale[0]}.jsonl")
-                records = []
-            self.records: dict[str, dict] = {}
-            for r in records:
-                self.records.setdefault(r["key"], r)   # a key recorded twice keeps its first result
+                keys = []
+            self.keys: set[str] = set(keys)        # the finished runs (a key recorded twice counts once)
             self._fh = open(self.path, "ab")
         except OSError as exc:
             self.close()
@@ -137,12 +176,12 @@ class Journal:
             self.close()
             raise
 
-    def _check_stale(self, records: list[dict], fresh: bool) -> list[str]:
-        """The other hashes in ``records``; refused unless ``fresh``."""
-        stale = sorted({r["hash"] for r in records if r["hash"] != self.hash})
+    def _check_stale(self, keys: list[str], hashes: set[str], fresh: bool) -> list[str]:
+        """The other hashes among the journal's ``hashes``; refused unless ``fresh``."""
+        stale = sorted(hashes - {self.hash})
         if stale and not fresh:
             raise ResultsError(
-                f"{self.path}: holds {len(records)} runs of a different version of this scenario (hash "
+                f"{self.path}: holds {len(keys)} runs of a different version of this scenario (hash "
                 f"{', '.join(stale)}; now {self.hash}); pass --fresh to set them aside, or --results DIR")
         return stale
 
@@ -165,7 +204,7 @@ class Journal:
             self._lock = None
 
     def __contains__(self, key: str) -> bool:
-        return key in self.records
+        return key in self.keys
 
     def append(self, key: str, rows: list[dict]) -> None:
         """Record one finished run durably (one write, flush, fsync). A write the file system refuses (full
@@ -180,4 +219,4 @@ class Journal:
         except OSError as exc:
             raise ResultsError(f"{self.path}: cannot record run {key} ({exc.strerror}); the runs recorded before "
                                f"it are kept, re-run to resume") from None
-        self.records[key] = rec
+        self.keys.add(key)

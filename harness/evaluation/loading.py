@@ -10,7 +10,8 @@ Every error names the file, the key path and what was expected, for example::
 
 Checked at load, before any database is trained or file written: every condition of the grid as written
 (``sweep``), the method names against the registry (``harness.evaluation.methods``; none listed: its
-default), the plan's size, where the camera would stand, and each run's memory (``limits``).
+default) or imported from outside (``harness.evaluation.external``, their versions stamped on the scenario), the
+plan's size, where the camera would stand, and each run's memory (``limits``).
 """
 
 from __future__ import annotations
@@ -26,7 +27,8 @@ from pydantic import ValidationError
 
 from harness import safe_yaml
 from harness.evaluation.limits import LimitError, check_run
-from harness.evaluation.methods import default_methods, method_names
+from harness.evaluation.external import versions
+from harness.evaluation.methods import MethodError, default_methods
 from harness.evaluation.scenario import MAX_RUNS, RANDOM, Scenario, ScenarioError, short, to_spec
 from harness.evaluation.sweep import Condition, apply, check_sweep_shape, conditions
 from harness.scene.spec import CameraSpec, OccluderSpec, SceneError, SubjectSpec
@@ -153,13 +155,17 @@ def _check_size(configs: list[Scenario], where: str) -> None:
                             f"more than {MAX_RUNS}: reduce repeats or the sweep")
 
 
-def _check_methods(cond: Condition, where: str) -> None:
-    """Every listed method is registered (``harness.evaluation.methods``)."""
+def _check_methods(cond: Condition, where: str) -> dict[str, str]:
+    """Every listed method is built in (``harness.evaluation.methods``), ``module:function`` or installed, and can
+    be imported (``harness.evaluation.external``); returns the versions of those from outside the package."""
+    out = {}
     for i, m in enumerate(cond.config.methods):
-        if m not in method_names():
+        try:
+            out |= versions([m])
+        except MethodError as exc:
             label = "" if cond.label == "base" else f" (condition {cond.label})"
-            raise ScenarioError(f"{where}: methods[{i}]: unknown method {m!r} (valid: {', '.join(method_names())})"
-                                f"{label}")
+            raise ScenarioError(f"{where}: methods[{i}]: {exc}{label}") from None
+    return out
 
 
 def _check_limits(cond: Condition, where: str) -> None:
@@ -214,6 +220,9 @@ def parse_scenario(raw: Any, where: str = "<scenario>") -> Scenario:
         if not isinstance(values, list):
             raise ScenarioError(f"{where}: sweep[{key!r}]: must be a list of values, got {short(values)}")
     sweep = sweep or {}
+    # The outside methods' versions are the harness's own stamp, always taken from the code (a stored
+    # scenario.json read again, by run-video, carries the stamps of when it was stored).
+    raw = {k: v for k, v in raw.items() if k != "method_versions"}
     if "methods" not in raw:
         raw = raw | {"methods": list(default_methods())}
     if not sweep:
@@ -225,11 +234,12 @@ def parse_scenario(raw: Any, where: str = "<scenario>") -> Scenario:
         scenario = _validate(first | {"sweep": sweep}, where)
     conds = conditions(scenario)
     _check_size([c.config for c in conds], where)
+    stamped: dict[str, str] = {}
     for cond in conds:
-        _check_methods(cond, where)
+        stamped |= _check_methods(cond, where)
         _check_placement(cond, where)
         _check_limits(cond, where)
-    return scenario
+    return scenario.model_copy(update={"method_versions": dict(sorted(stamped.items()))}) if stamped else scenario
 
 
 def load_scenario(path: str | Path) -> Scenario:

@@ -20,6 +20,12 @@ from it: adding a method is one registration here.
   reproduction along the recovered state path (``harness.engine.reproduction``), compared after dynamic time
   warping with the demonstration, beside the true class's mean trajectory (``REPRODUCTION_COLUMNS``).
 
+Methods from outside the package (``harness.evaluation.external``): a scenario may name ``module.path:function``
+or a method an installed package registers under the entry-point group ``harness.methods``; the function follows
+the same protocol (version ``PROTOCOL_VERSION``, ``docs/methods.md``) and says which columns it produces with
+``declare``. Its estimate is checked (``check_estimate``) before it is scored, and an exception it raises marks its
+own row failed (``run_method``) while the evaluation goes on.
+
 The engine runs at most once per run and pose source (``EngineRuns``): ``full``, ``full_smoothed`` and
 ``reproduction`` share one run.
 
@@ -42,6 +48,7 @@ from harness.engine.database import UNKNOWN
 from harness.engine.features import measured_features
 from harness.engine.recovery import fit_without_database
 from harness.engine.switching import STREAM_MIN_FRAMES, online_labels, recognize_stream_features
+from harness.errors import HarnessError
 from harness.evaluation import metrics
 from harness.evaluation.stream_metrics import STREAM_COLUMNS, stream_scores
 from harness.motion.stream import label_segments
@@ -132,7 +139,9 @@ class EngineRuns:
 @dataclass(frozen=True)
 class Method:
     """A registered method. recognises/recovers/reproduces: which columns its estimate is scored on (``–`` in
-    the report otherwise). given: columns it is handed rather than estimating (``given``)."""
+    the report otherwise). given: columns it is handed rather than estimating (``given``). version: for a method
+    from outside the package, its code's version (``external.source_version``), stamped on its rows; empty for
+    the built-in ones (the package's own code version is in every scenario hash)."""
 
     name: str
     estimate: Callable[[RunInputs, EngineRuns], Estimate | None]
@@ -141,9 +150,40 @@ class Method:
     given: tuple[str, ...] = ()
     default: bool = True
     reproduces: bool = False
+    version: str = ""
+
+    @property
+    def external(self) -> bool:
+        return bool(self.version)
 
 
 METHODS: dict[str, Method] = {}
+EXTERNAL: dict[str, Method] = {}      # methods from outside the package, as resolved (``external.resolve``)
+PROTOCOL_VERSION = 1                  # of ``estimate(inputs, engine) -> Estimate | None`` (docs/methods.md)
+DECLARATION = "harness_method"        # the attribute ``declare`` sets on a function from outside the package
+
+
+class MethodError(HarnessError):
+    """A method from outside the package that cannot be used: not importable, not declared, or an estimate that
+    breaks the protocol; the message names the method."""
+
+
+def declare(recognises: bool, recovers: bool, given: tuple[str, ...] = (), protocol: int = PROTOCOL_VERSION):
+    """Declare a function outside the package a method of protocol ``protocol``: which columns its estimate is
+    scored on (``recognises``: the recognition or stream columns from ``class_posterior``; ``recovers``: the
+    recovery columns from ``qpos``) and which of those it is handed rather than estimating (``given``, e.g.
+    ``BASE_POSE_COLUMNS`` for a method handed the true base pose). Sets ``function.harness_method``, which a
+    package may also set by hand (a mapping of these four keys) to avoid importing the harness."""
+    def mark(fn):
+        setattr(fn, DECLARATION, {"protocol": protocol, "recognises": recognises, "recovers": recovers,
+                                  "given": tuple(given)})
+        return fn
+    return mark
+
+
+def known(name: str) -> Method | None:
+    """The built-in or already resolved method of that name, or None (no import is tried)."""
+    return METHODS.get(name) or EXTERNAL.get(name)
 
 
 def method(name: str, recognises: bool, recovers: bool, given: tuple[str, ...] = (), default: bool = True,
@@ -168,7 +208,7 @@ def default_methods() -> tuple[str, ...]:
 def produces(name: str, column: str) -> bool:
     """Whether method ``name`` produces ``column`` (recognition, recovery and reproduction columns; others
     always)."""
-    m = METHODS.get(name)
+    m = known(name)
     if m is None:
         return True
     if column in RECOGNITION_COLUMNS or column in STREAM_RECOGNITION_COLUMNS:
@@ -300,6 +340,69 @@ def score(m: Method, est: Estimate | None, inputs: RunInputs) -> dict:
     recovered = (recovery_scores(inputs, est.qpos) if m.recovers and est is not None
                  else not_produced(RECOVERY_COLUMNS))
     return recognised | recovered
+
+
+def check_estimate(m: Method, est: Estimate | None, inputs: RunInputs) -> None:
+    """``MethodError`` naming the method when its estimate breaks the protocol: not an ``Estimate`` (or None);
+    ``classes`` other than ``inputs.classes`` in that order; a recognising method's ``class_posterior`` not
+    ``(T, C)`` with finite non-negative rows summing to 1; a recovering method's ``qpos`` not ``(T, 57)`` and
+    finite (``T``: the observation's frames)."""
+    if est is None:
+        return
+    if not isinstance(est, Estimate):
+        raise MethodError(f"method {m.name!r} returned {type(est).__name__}, not an Estimate or None")
+    n, classes = len(inputs.obs), tuple(inputs.classes)
+    if m.recognises:
+        if tuple(str(c) for c in np.asarray(est.classes).tolist()) != classes:
+            raise MethodError(f"method {m.name!r}: Estimate.classes must be inputs.classes {list(classes)} in that "
+                              f"order, got {np.asarray(est.classes).tolist()}")
+        post = None if est.class_posterior is None else np.asarray(est.class_posterior, dtype=float)
+        if post is None or post.shape != (n, len(classes)):
+            got = "None" if post is None else str(post.shape)
+            raise MethodError(f"method {m.name!r} recognises: class_posterior must be ({n}, {len(classes)}) (frames x "
+                              f"classes), got {got}")
+        if not np.all(np.isfinite(post)) or np.any(post < 0) or not np.allclose(post.sum(axis=1), 1.0, atol=1e-6):
+            raise MethodError(f"method {m.name!r}: class_posterior rows must be finite, non-negative and sum to 1")
+    if m.recovers:
+        qpos = None if est.qpos is None else np.asarray(est.qpos, dtype=float)
+        if qpos is None or qpos.shape != (n, 57):
+            raise MethodError(f"method {m.name!r} recovers: qpos must be ({n}, 57), got "
+                              f"{'None' if qpos is None else qpos.shape}")
+        if not np.all(np.isfinite(qpos)):
+            raise MethodError(f"method {m.name!r}: qpos must be finite")
+
+
+FAILED_MESSAGE_CHARS = 300     # a failed row keeps the first line of its error, cut to this
+
+
+def first_line(exc: BaseException) -> str:
+    """``Type: first line of the message`` (what a failed row records)."""
+    lines = str(exc).strip().splitlines()
+    text = f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
+    return text if len(text) <= FAILED_MESSAGE_CHARS else text[:FAILED_MESSAGE_CHARS - 3] + "..."
+
+
+def failed_scores(m: Method, inputs: RunInputs, message: str) -> dict:
+    """The columns of a row whose method failed: every metric empty, ``failed`` the message."""
+    columns = ((REPRODUCTION_COLUMNS if m.reproduces else ()) + (inputs.recognition_columns if m.recognises else ())
+               + (RECOVERY_COLUMNS if m.recovers else ()))
+    return not_produced(columns) | {"failed": message}
+
+
+def run_method(m: Method, inputs: RunInputs, engine: EngineRuns) -> dict:
+    """The metric columns of one method on one run. A method from outside the package is isolated: an exception
+    it raises, or an estimate that breaks the protocol, makes its row failed (``failed``: the error's first line)
+    and the evaluation goes on; its rows carry ``method_version``. A built-in method's exception is the harness's
+    own bug and keeps its traceback."""
+    if not m.external:
+        return score(m, m.estimate(inputs, engine), inputs)
+    stamp = {"method_version": m.version}
+    try:
+        est = m.estimate(inputs, engine)
+        check_estimate(m, est, inputs)
+        return score(m, est, inputs) | {"failed": ""} | stamp
+    except Exception as exc:                # the method's own failure: its row, not the evaluation
+        return failed_scores(m, inputs, first_line(exc)) | stamp
 
 
 # --- the methods ------------------------------------------------------------------------------------------

@@ -30,7 +30,8 @@ import numpy as np
 from harness.body import nominal_body
 from harness.engine import MotionDatabase, Tracker, TrackerConfig
 from harness.evaluation.cache import cached, path_for_key
-from harness.evaluation.methods import METHODS, EngineRuns, RunInputs, score, segment_list
+from harness.evaluation.external import resolve
+from harness.evaluation.methods import EngineRuns, Method, MethodError, RunInputs, run_method, segment_list
 from harness.evaluation.runner import PROCEDURAL, RunError, RunSpec
 from harness.evaluation.scenario import Scenario, scene_spec, tracker_config
 from harness.evaluation.viewing import viewing_columns
@@ -199,6 +200,25 @@ def clear_caches() -> None:
 
 # --- one run --------------------------------------------------------------------------------------------
 
+def check_classes(run: RunSpec, classes, labels: np.ndarray | None, scenario_classes) -> None:
+    """``RunError`` when the run's class (or a stream's label) is one of the scenario's but has no training
+    demonstration in the split (a class the scenario does not have is an open-set test motion)."""
+    missing = sorted(set(labels) - set(classes) - {TRANSITION}) if labels is not None else (
+        [] if run.test_class in classes or run.test_class not in scenario_classes else [run.test_class])
+    if missing:
+        raise RunError(f"run {run.key}: class {missing[0]!r} has no training demonstration in this split")
+
+
+def play(run: RunSpec, motion: Motion):
+    """The test motion played in the run's scene (the scene spec drawn from the run's scene generator, once):
+    ``(spec, observation, ground truth, the observed subject's body, the motion as that subject performed it)``."""
+    scene_rng = named_generator(run.seed, "scene")
+    spec = scene_spec(run.config, scene_rng)
+    obs, truth = simulate(motion, spec, scene_rng, nominal_body())
+    subject = nominal_body() if np.all(truth.segment_scale == 1.0) else nominal_body().scaled(truth.segment_scale)
+    return spec, obs, truth, subject, motion.replace(qpos=truth.qpos)
+
+
 def run_inputs(run: RunSpec) -> RunInputs:
     """Everything the methods of one run use (also what ``harness run-video`` re-creates): the test motion
     played in the run's scene (the scene spec drawn from the run's scene generator, once), the database, the
@@ -211,15 +231,8 @@ def run_inputs(run: RunSpec) -> RunInputs:
     motion = test_motion(run) if stream is None else stream.motion
     db, db_path = database(cfg, motion, run.cache_dir)
     labels = None if stream is None else stream.labels
-    missing = (sorted(set(labels) - set(db.classes_) - {TRANSITION}) if stream is not None
-               else [] if run.test_class in db.classes_ or run.test_class not in cfg.classes else [run.test_class])
-    if missing:     # a class of the scenario's is not in this run's database (a capture row of no other group)
-        raise RunError(f"run {run.key}: class {missing[0]!r} has no training demonstration in this split")
-    scene_rng = named_generator(run.seed, "scene")
-    spec = scene_spec(cfg, scene_rng)
-    obs, truth = simulate(motion, spec, scene_rng, nominal_body())
-    subject = nominal_body() if np.all(truth.segment_scale == 1.0) else nominal_body().scaled(truth.segment_scale)
-    observed = motion.replace(qpos=truth.qpos)
+    check_classes(run, db.classes_, labels, cfg.classes)
+    spec, obs, truth, subject, observed = play(run, motion)
     tc = tracker_config(cfg)
     return RunInputs(key=run.key, label=run.test_class, classes=tuple(db.classes_), body=nominal_body(),
                      subject=subject, db=db, motion=observed, obs=obs, truth=truth,
@@ -241,12 +254,27 @@ def run_one(run: RunSpec) -> list[dict]:
     rows = []
     for name in run.config.methods:
         t0 = time.perf_counter()
-        m = METHODS[name]
-        scores = score(m, m.estimate(inputs, engine), inputs)
+        m = _method(run, name)
+        scores = run_method(m, inputs, engine)
         ms = 1e3 * (time.perf_counter() - t0) / max(len(obs), 1)
         rows.append({"method": name} | common | scores | {"ms_per_frame": ms})
     return rows
 
 
-__all__ = ["clear_caches", "database", "database_key", "fresh_tracker", "run_inputs", "run_one", "test_motion",
-           "test_stream", "training_identity", "training_motions"]
+def _method(run: RunSpec, name: str) -> Method:
+    """The run's method ``name``; a method from outside the package must be the code the run was planned with
+    (its version stamped on the scenario at load), as the harness's own code must (``run_inputs``)."""
+    try:
+        m = resolve(name)
+    except MethodError as exc:
+        raise RunError(f"run {run.key}: {exc}") from None
+    planned = run.config.method_versions.get(name, "")
+    if m.version != planned:
+        raise RunError(f"run {run.key}: method {name!r} is version {m.version or 'built in'} in this process, the "
+                       f"run was planned with {planned or 'a built-in method'} (its code changed: evaluate again "
+                       f"with --fresh)")
+    return m
+
+
+__all__ = ["check_classes", "clear_caches", "database", "database_key", "fresh_tracker", "play", "run_inputs",
+           "run_one", "test_motion", "test_stream", "training_identity", "training_motions"]

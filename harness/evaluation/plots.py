@@ -7,6 +7,7 @@ are means with 95% bootstrap intervals, one line per method.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -394,7 +395,8 @@ def write_plots(rows: pd.DataFrame, out_dir: str | Path, swept: list[str], class
         made.append("plots/by_view.png")
     pooled = rows.assign(condition="all conditions")
     for (_, method), mat in confusion(pooled, classes).items():
-        name = f"plots/confusion_{method}.png"
+        # a method from outside is named module.path:function: a file name of the characters every system keeps
+        name = "plots/confusion_" + re.sub(r"[^A-Za-z0-9_.-]", "_", method) + ".png"
         plot_confusion(mat, f"{method}: all conditions, {int(mat.to_numpy().sum())} runs", out_dir / name)
         made.append(name)
     return made

@@ -67,6 +67,7 @@ def make_report(scenario: Scenario, results_dir: str | Path, rows: pd.DataFrame 
         f"significant figures; `correct` is the final recognition accuracy (0-1); `given`: the method is handed "
         f"that quantity; `–`: the method does not produce it. {_test_sets_line(rows)}Scenario hash `{digest}`.\n",
         markdown(tables["headline"]),
+        *failed_section(rows),
     ]
     recognises = len(recognising(rows)) > 0    # a scenario of reproduction alone has no recognition sections
     if recognises:
@@ -148,6 +149,7 @@ def _stream_report(scenario: Scenario, results_dir: Path, rows: pd.DataFrame, ta
         f"`boundary_delay_s` is the mean delay from a true primitive change to its detection. `given`: the method "
         f"is handed that quantity; `–`: it does not produce it. Scenario hash `{digest}`.\n",
         markdown(tables["headline"]),
+        *failed_section(rows),
     ]
     worst = tables["worst_runs"]
     if len(worst):
@@ -172,6 +174,34 @@ def _stream_report(scenario: Scenario, results_dir: Path, rows: pd.DataFrame, ta
                   "with its frame accuracy and F1@25.\n",
                   *[f"![{Path(f).stem}]({f})\n" for f in timelines]]
     return _finish(parts, scenario, tables, results_dir)
+
+
+MAX_FAILED_LISTED = 50      # failed rows listed in the report (all of them are in runs.csv, column failed)
+
+
+def failed_rows(rows: pd.DataFrame) -> pd.DataFrame:
+    """The rows whose method failed (``failed``: the error's first line; methods from outside the package)."""
+    if "failed" not in rows:
+        return rows.iloc[:0]
+    failed = rows["failed"].fillna("").astype(str)
+    return rows[failed != ""]
+
+
+def failed_section(rows: pd.DataFrame) -> list[str]:
+    """The report's list of failed rows, right under the headline (none: no section)."""
+    failed = failed_rows(rows)
+    if not len(failed):
+        return []
+    counts = ", ".join(f"`{m}` {n}" for m, n in failed["method"].value_counts(sort=False).items())
+    listed = failed[["run_key", "method", "failed"]].head(MAX_FAILED_LISTED)
+    listed = listed.assign(failed=listed["failed"].str.replace("|", "\\|"))     # a table cell's bar escaped
+    more = (f" The first {MAX_FAILED_LISTED} are listed; all are in `runs.csv` (column `failed`)."
+            if len(failed) > MAX_FAILED_LISTED else "")
+    return ["## Failed rows\n",
+            f"{len(failed)} of {len(rows)} rows failed ({counts}): the method raised, or its estimate broke the "
+            f"protocol (`docs/methods.md`). Their metrics are empty and left out of every mean and interval above; "
+            f"the other rows are complete.{more}\n",
+            markdown(listed.reset_index(drop=True))]
 
 
 #: Answered-for-others classes the report lists per condition and method (the rest are in ``answers.csv``).

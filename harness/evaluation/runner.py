@@ -30,7 +30,7 @@ import pandas as pd
 
 from harness.errors import HarnessError
 from harness.evaluation.journal import Journal
-from harness.evaluation.journal import read as read_journal
+from harness.evaluation.journal import records as journal_records
 from harness.evaluation.results_dir import check as check_results_dir
 from harness.evaluation.scenario import MAX_RUNS, Scenario, scenario_hash
 from harness.evaluation.sweep import conditions
@@ -189,7 +189,7 @@ def connect(address: str, timeout_s: float | None = None):
         from dask.distributed import Client
     except ImportError:
         raise RunError(f"--scheduler {address}: dask.distributed is not installed "
-                       f"(pip install 'harness[dask]')") from None
+                       f"(pip install 'monocular-motion-harness[dask]')") from None
     timeout = SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s
     try:
         return Client(address, timeout=f"{timeout}s")
@@ -248,11 +248,11 @@ def run_scenario(scenario: Scenario, results_dir: str | Path, run_fn: RunFunctio
         write_text_atomic(results_dir / "scenario.json", _scenario_json(scenario, digest))
         todo = [r for r in runs if r.key not in journal]
         if todo:
-            from tqdm import tqdm
+            from harness.evaluation.progress import progress as progress_bar
 
             finished = (_execute_dask(todo, run_fn, client) if client is not None
                         else _execute_local(todo, run_fn, jobs))
-            bar = tqdm(total=len(todo), desc=scenario.name, unit="run", disable=not progress, leave=False)
+            bar = progress_bar(len(todo), scenario.name, enabled=progress)     # a live bar on a terminal only
             try:
                 for run, rows in finished:
                     journal.append(run.key, _checked_rows(run, rows))
@@ -284,15 +284,12 @@ def _scenario_json(scenario: Scenario, digest: str) -> str:
 
 def load_rows(results_dir: str | Path, digest: str | None = None) -> pd.DataFrame:
     """The journal's rows as one table sorted by run key then method (rows of other hashes left out)."""
-    records = read_journal(Path(results_dir) / "runs.jsonl", repair=False)
-    seen: set[str] = set()
-    rows = []
-    for rec in sorted(records, key=lambda r: r["key"]):
-        if (digest is not None and rec["hash"] != digest) or rec["key"] in seen:
-            continue
-        seen.add(rec["key"])
-        rows.extend(rec["rows"])
-    table = pd.DataFrame(rows)
+    # Streamed: only the rows kept are held (a record's first occurrence of its key, as ``Journal`` counts it).
+    kept: dict[str, list[dict]] = {}
+    for rec in journal_records(Path(results_dir) / "runs.jsonl", repair=False):
+        if (digest is None or rec["hash"] == digest) and rec["key"] not in kept:
+            kept[rec["key"]] = rec["rows"]
+    table = pd.DataFrame([row for key in sorted(kept) for row in kept[key]])
     if len(table):
         table = table.sort_values(["run_key", "method"], kind="stable").reset_index(drop=True)
     return table

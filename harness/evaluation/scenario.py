@@ -341,6 +341,10 @@ class Scenario(_Section):
     observation: ObservationConfig = ObservationConfig()
     engine: EngineConfig = EngineConfig()
     methods: tuple[str, ...] | None = None      # None: the registry's default (``loading`` fills it in)
+    # The code version of each method from outside the package (``module:function`` or installed), stamped by
+    # ``loading`` from the methods' code and never written in a file: part of the scenario hash, so that rows
+    # of changed method code are never mixed with old ones.
+    method_versions: dict[str, str] = Field(default_factory=dict)
     sweep: dict[str, list[Any]] = Field(default_factory=dict)
 
     @field_validator("name")

@@ -29,7 +29,8 @@ UNSWEEPABLE = {"seed": "the scenario seed is shared by every condition (common r
                        "independent draws",
                "database.capture_sets": "capture sets are resolved once per scenario",
                "database.capture_dirs": "capture sets are resolved once per scenario",
-               "database.manifest": "capture sets are resolved once per scenario"}
+               "database.manifest": "capture sets are resolved once per scenario",
+               "method_versions": "stamped from the methods' code at load, not written in a scenario"}
 
 
 def set_dotted(raw: dict, key: str, value: Any, where: str = "<scenario>") -> dict:

@@ -17,7 +17,7 @@ import pandas as pd
 
 from harness.evaluation.cache import stable_hash
 from harness.evaluation.calibration import calibration_table, pooled_calibration, reliability_table
-from harness.evaluation.methods import METHODS, CURVE_POINTS, method_names, produces
+from harness.evaluation.methods import CURVE_POINTS, known, method_names, produces
 from harness.evaluation.stats import N_BOOT, bootstrap_ci, mcnemar_exact, wilcoxon_paired
 from harness.io import write_text_atomic
 
@@ -39,6 +39,12 @@ STREAM_HEADLINE = ("frame_accuracy", "edit_score", "f1_10", "f1_25", "f1_50", "b
 def is_stream(rows: pd.DataFrame) -> bool:
     """Whether the rows are of stream runs (scored per frame, ``harness.evaluation.stream_metrics``)."""
     return "edit_score" in rows.columns
+
+
+def _given(method: str) -> tuple[str, ...]:
+    """The columns a method is handed rather than estimating (none for a method not known in this process)."""
+    m = known(method)
+    return () if m is None else m.given
 
 
 def _method_rank(m: str) -> int:
@@ -83,10 +89,11 @@ def summary(rows: pd.DataFrame, swept: list[str], n_boot: int = N_BOOT, seed: in
 
 def recognising(rows: pd.DataFrame) -> pd.DataFrame:
     """The rows of methods that recognise one class per run (a registered method without recognition has no class
-    rows; stream runs have none either)."""
+    rows; stream runs have none either), less the rows whose method failed (no answer: ``failed``)."""
     if not len(rows) or is_stream(rows):
         return rows.iloc[0:0]
-    return rows[[produces(m, "correct") for m in rows["method"]]]
+    answered = rows["failed"].fillna("").astype(str) == "" if "failed" in rows else True
+    return rows[np.array([produces(m, "correct") for m in rows["method"]], dtype=bool) & answered]
 
 
 def per_class(rows: pd.DataFrame) -> pd.DataFrame:
@@ -223,7 +230,7 @@ def headline(summ: pd.DataFrame, swept: list[str], metrics: tuple[str, ...] = HE
     rows = []
     for (cond, method), g in summ.groupby(["condition", "method"], sort=False):
         g = g.set_index("metric")
-        given = METHODS[method].given if method in METHODS else ()
+        given = _given(method)
         row = {"condition": cond, **{k: g.iloc[0][k] for k in swept}, "method": method,
                # a table of a few metrics (timing) lacks n_frames: its runs are those that measured them
                "runs": int(g.loc["n_frames", "n"] if "n_frames" in g.index else g["n"].max())}
@@ -315,7 +322,7 @@ def by_view(rows: pd.DataFrame, n_boot: int = N_BOOT, seed: int = 0) -> pd.DataF
     out = []
     for view, _, _ in VIEW_BINS:
         for method, g in rows[views == view].groupby("method", sort=False):
-            given = METHODS[method].given if method in METHODS else ()
+            given = _given(method)
             for metric in VIEW_METRICS:
                 if metric not in g or metric in given or (metric == "frame_accuracy" and "correct" in g
                                                           and not is_stream(g)):
@@ -351,7 +358,7 @@ def _estimated_pose_groups(rows: pd.DataFrame, need: tuple[str, ...], cols: list
         return pd.DataFrame(columns=cols)
     out = []
     for (cond, method), g in rows.groupby(["condition", "method"], sort=False):
-        if method in METHODS and "heading_err_deg" in METHODS[method].given:
+        if "heading_err_deg" in _given(method):
             continue
         x = g[list(need)].apply(pd.to_numeric, errors="coerce").dropna()
         if len(x) >= least:
