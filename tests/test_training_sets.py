@@ -162,3 +162,16 @@ def test_a_changed_training_motion_changes_the_key(capture_dirs, tmp_path):
     changed[0] = changed[0].replace(qpos=changed[0].qpos + np.r_[np.zeros(7), np.full(50, 1e-9)])
     assert stable_hash(pipeline.database_key(run.config, changed)) != stable_hash(key)
     assert stable_hash(pipeline.database_key(run.config, training[:-1])) != stable_hash(key)
+
+
+def test_the_database_learns_only_the_rows_its_select_lets_it(capture_dirs, tmp_path):
+    """``database.select``: a database of procedural demonstrations and the studio's ``normal`` rows alone,
+    whatever the tested row."""
+    scenario = resolve_capture(parse_scenario({"name": "sel", "database": PROCEDURAL["database"] | {
+        "source": "both", "select": [{"source": ["studio"], "style": ["normal"]}]},
+        "test": {"motions": "captures", "split": "none"}}), [str(d) for d in capture_dirs])
+    pipeline.clear_caches()
+    for run in plan(scenario, tmp_path):
+        training = pipeline.training_motions(run.config, pipeline.test_motion(run))
+        captured = [m for m in training if m.source != "procedural"]
+        assert captured and {(m.source, m.style) for m in captured} == {("studio", "normal")}

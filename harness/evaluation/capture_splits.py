@@ -63,12 +63,19 @@ def row_index(rows: tuple[CaptureRow, ...]) -> dict[tuple[str, str], list[int]]:
     return out
 
 
+def _matches(values: dict, select) -> bool:
+    return select is None or any(all(values[col] in allowed for col, allowed in f.items()) for f in select)
+
+
 def selected(row: CaptureRow, select) -> bool:
-    """Whether ``row`` matches some filter of ``test.select`` (None: every row)."""
-    if select is None:
-        return True
-    values = {"source": row.set_name, "subject": row.subject, "style": row.style, "class": row.label}
-    return any(all(values[col] in allowed for col, allowed in f.items()) for f in select)
+    """Whether ``row`` matches some filter of ``test.select`` or ``database.select`` (None: every row)."""
+    return _matches({"source": row.set_name, "subject": row.subject, "style": row.style, "class": row.label}, select)
+
+
+def selected_motion(motion, select) -> bool:
+    """``selected`` for a capture motion (its source, subject, style and class)."""
+    return _matches({"source": motion.source, "subject": str(motion.subject), "style": motion.style,
+                     "class": motion.label}, select)
 
 
 @dataclass(frozen=True)
@@ -104,7 +111,7 @@ def verdicts(cfg: Scenario) -> list[Verdict]:
             if test.split == "style" and held is None:
                 out.append(Verdict(row, d, "skipped", "no style"))
             elif db.learns_procedural or any(
-                    r.label == label and r.set_name in (db.capture_sets or ()) and (
+                    r.label == label and r.set_name in (db.capture_sets or ()) and selected(r, db.select) and (
                         held is None or group(r.set_name, r.subject, r.style, r.demo, test.split) != held)
                     for r in rows):
                 out.append(Verdict(row, d, "tested"))

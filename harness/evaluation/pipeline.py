@@ -121,10 +121,11 @@ def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
 
     Procedural demonstrations (``database.source`` procedural or both): ``performer.training_set``, subjects
     never used for tests. Capture rows (captures or both): every row of the database's classes (never
-    ``other``) of at least ``database.states`` frames but those of a capture test motion's group under
+    ``other``) of at least ``database.states`` frames that ``database.select`` lets it learn, but those of a
+    capture test motion's group under
     ``test.split`` (``capture_splits.holds_out``);
     for a capture stream, every row of its take. Only the scenario's classes are learned."""
-    from harness.evaluation.capture_splits import holds_out
+    from harness.evaluation.capture_splits import holds_out, selected_motion
 
     db = cfg.database
     out = []
@@ -132,7 +133,8 @@ def training_motions(cfg: Scenario, test: Motion | None) -> list[Motion]:
         out += list(_procedural_training(tuple(cfg.classes), db.train_demos, db.seed, float(db.fps)))
     if db.learns_captures:
         # A left-to-right chain needs a frame per state: shorter rows (two Bandai dashes of 0.6 s) only test.
-        motions = [m for m in _captures(cfg) if m.label in cfg.classes and m.n_frames >= db.states]
+        motions = [m for m in _captures(cfg) if m.label in cfg.classes and m.n_frames >= db.states
+                   and selected_motion(m, db.select)]
         if test is not None and cfg.test.stream is not None:
             # A capture stream is a whole take: none of its rows trains the database.
             take = test.demo.split(":")[0]

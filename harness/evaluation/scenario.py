@@ -97,6 +97,8 @@ class DatabaseConfig(_Section):
     capture_sets: tuple[str, ...] | None = None  # the capture sets of the scenario, by name (the directory's);
                                                  # default: every set given, else the repository's library
     capture_dirs: tuple[str, ...] | None = None  # where sets are (else --mocap-dir, $HARNESS_MOCAP_DIR, library)
+    select: tuple[dict[Literal[CAPTURE_COLUMNS], tuple[str, ...]], ...] | None = None   # the capture rows it may
+                                                                                      # learn (as test.select)
     manifest: str = "MANIFEST.csv"          # each set's manifest, a path inside its directory
     classes: tuple[str, ...] | None = None  # default: the procedural classes and the capture sets' classes
     train_demos: int = Field(8, ge=1, le=1000)   # demonstrations per class (procedural)
