@@ -230,8 +230,8 @@ def test_open_set_rows_are_in_no_accuracy_but_their_own_table(tmp_path):
                          "log_p_true": [-0.2, -2.3, float("nan")], "accuracy_curve": [[1] * 10, [0] * 10, []],
                          "n_frames": 30, "ms_per_frame": 1.0})
     out = tables.write_tables(runs, tmp_path, [], ["walk", "kick"], n_boot=50)
-    assert list(out["headline"]["condition"]) == ["base | bandai", "base | cmu"] or \
-        list(out["headline"]["condition"]) == ["base | cmu", "base | bandai"]
+    assert list(out["headline"]["condition"]) == ["base / bandai", "base / cmu"] or \
+        list(out["headline"]["condition"]) == ["base / cmu", "base / bandai"]
     assert out["open_set"].iloc[0][["class_true", "runs", "answers", "confidence"]].tolist() == [
         "other", 1, "walk 1", 0.9]
     assert out["by_source"].set_index("source")["right"].to_dict() == {"cmu": 1, "bandai": 0}

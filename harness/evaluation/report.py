@@ -224,7 +224,7 @@ def _test_sets_line(rows: pd.DataFrame) -> str:
     parts = []
     if "source" in rows and rows["source"].nunique() > 1:
         runs = rows.drop_duplicates("run_key")["source"].value_counts()
-        parts.append("Each condition is reported per test set (`condition | set`: " + ", ".join(
+        parts.append("Each condition is reported per test set (`condition / set`: " + ", ".join(
             f"{s} {n} runs" for s, n in runs.items()) + ").")
     unknown = known_and_open_set(rows)[1]
     if len(unknown):

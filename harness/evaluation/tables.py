@@ -422,11 +422,11 @@ def known_and_open_set(rows: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
 
 
 def by_test_set(rows: pd.DataFrame) -> pd.DataFrame:
-    """Rows whose condition names their test set (``<condition> | <source>``) when they come from several
+    """Rows whose condition names their test set (``<condition> / <source>``) when they come from several
     (procedural demonstrations and capture sets): every table then reports each set apart."""
     if "source" not in rows or rows["source"].nunique() < 2:
         return rows
-    return rows.assign(condition=rows["condition"].astype(str) + " | " + rows["source"].astype(str))
+    return rows.assign(condition=rows["condition"].astype(str) + " / " + rows["source"].astype(str))
 
 
 def accuracy_by(rows: pd.DataFrame, column: str) -> pd.DataFrame:
