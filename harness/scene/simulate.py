@@ -9,7 +9,9 @@ outlier rows are added (``M`` the visible count before dropout), uniform over th
 uniform in ``[-OUTLIER_SPEED, OUTLIER_SPEED]`` px/s per axis; rows are shuffled. Rendered mode replaces the
 projected markers by dots detected in MuJoCo images and tracked with Lucas-Kanade (``harness.scene.rendered``;
 no synthetic pixel noise is added there, the image processing has its own), then applies the same
-dropout, outliers and shuffling.
+dropout, outliers and shuffling. Video mode renders the subject in cloth and finds its flows with
+``track-video``'s pipeline (``harness.scene.footage``: background subtraction, corners, Lucas-Kanade; no
+synthetic noise, no marker ids), then the same dropout, outliers and shuffling.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from harness.motion.motion import Motion
 from harness.observation import Observation
 from harness.pinhole import Intrinsics, in_image
 from harness.scene.camera import camera_velocity
+from harness.scene.footage import video_flows
 from harness.scene.occluders import GEOM_TYPES, Obstacle
 from harness.scene.rendered import rendered_flows
 from harness.scene.setup import SceneSetup, build_setup
@@ -169,6 +172,8 @@ def simulate(motion: Motion, spec: SceneSpec, rng: np.random.Generator, body: Bo
     motion = setup.motion
     if spec.observation.mode == "rendered":
         frames = rendered_flows(setup, motion.qpos, motion.fps)
+    elif spec.observation.mode == "video":
+        frames = video_flows(setup, motion.qpos, motion.fps)
     else:
         frames = geometric_flows(setup.pixels, visible, motion.fps, spec.observation.noise_px,
                                  traj.intrinsics, rng)
