@@ -134,6 +134,7 @@ def render_run(results_dir: str | Path, run_key: str, method: str = "full") -> t
     from harness.pinhole import project
     from harness.scene.rendered import render_frames
     from harness.scene.setup import build_setup
+    from harness.scene.simulate import OUTLIER_ID
     from harness.video import draw_flows, draw_skeleton
 
     run, inputs, est = method_estimate(results_dir, run_key, method)
@@ -147,7 +148,7 @@ def render_run(results_dir: str | Path, run_key: str, method: str = "full") -> t
     classes = list(inputs.classes)
     frames = []
     for t, rgb in enumerate(render_frames(setup, setup.motion.qpos)):
-        img = draw_flows(rgb, obs.flows[t], truth.marker_ids[t] < 0)
+        img = draw_flows(rgb, obs.flows[t], truth.marker_ids[t] == OUTLIER_ID)
         # The truth is drawn last: it is the reference the estimate is read against.
         for joints, colour in ((est_cam[t], ESTIMATE_RGB), (true_cam[t], TRUE_RGB)):
             front = joints[:, 2] > 0.05

@@ -5,7 +5,8 @@ geometric flows of the same runs.
 The pipeline learns the background from the scene rendered without the subject (an empty plate: a static
 camera's background before anyone walks in), and follows the whole image as one region (``--roi`` of the
 whole frame): the scene holds one person, so everything that moves is them. Its flows are the observation;
-features are no markers, so every row's ground-truth marker id is -1.
+features are no markers, so every row's ground-truth marker id is ``FEATURE_ID`` (-2; outliers added later
+are -1).
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ import numpy as np
 from harness.footage.pipeline import FollowResult, follow_people
 from harness.scene.rendered import render_frames
 from harness.scene.setup import SceneSetup
+
+FEATURE_ID = -2          # the ground-truth "marker id" of a video feature: no marker, and no outlier either
 
 
 def render_footage(setup: SceneSetup, qpos: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
@@ -34,8 +37,8 @@ def follow_subject(frames: list[np.ndarray], plate: np.ndarray, fps: float) -> F
 
 
 def video_flows(setup: SceneSetup, qpos: np.ndarray, fps: float) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per frame ``(rows (M, 4), marker ids (M,) all -1)``: the subject's flows from rendered textured footage
-    (unshuffled, no dropout)."""
+    """Per frame ``(rows (M, 4), marker ids (M,) all FEATURE_ID)``: the subject's flows from rendered textured
+    footage (unshuffled, no dropout)."""
     frames, plate = render_footage(setup, qpos)
     result = follow_subject(frames, plate, fps)
     empty = np.empty((0, 4))
@@ -43,5 +46,5 @@ def video_flows(setup: SceneSetup, qpos: np.ndarray, fps: float) -> list[tuple[n
     out = []
     for t in range(len(qpos)):
         rows = person.flows.get(t, empty) if person is not None else empty
-        out.append((rows, np.full(len(rows), -1, dtype=int)))
+        out.append((rows, np.full(len(rows), FEATURE_ID, dtype=int)))
     return out

@@ -22,15 +22,17 @@ TEXTURE_PX = 256          # texture image side: one texture pixel is 1 mm on the
 TEXTURE_REPEAT = 4.0      # repeats per metre: one texture spans 25 cm
 STRIPE_PX = (15, 50)      # stripe widths, texture pixels (1.5-5 cm: 2-7 px at 4 m with the default 640x480,
                           # 45 degree camera)
-PALETTE = np.array([      # muted clothing colours (RGB 0-1): navy, bottle green, burgundy, ochre, charcoal,
-    [0.12, 0.16, 0.35],   # cream, slate blue, rust
-    [0.10, 0.30, 0.18],
-    [0.45, 0.10, 0.14],
-    [0.70, 0.55, 0.20],
-    [0.18, 0.18, 0.20],
-    [0.85, 0.82, 0.72],
-    [0.35, 0.45, 0.60],
-    [0.62, 0.30, 0.16],
+DARK = np.array([         # muted clothing colours, RGB 0-1: navy, bottle green, burgundy, charcoal
+    [0.10, 0.13, 0.30],
+    [0.08, 0.26, 0.15],
+    [0.40, 0.08, 0.12],
+    [0.15, 0.15, 0.17],
+])
+LIGHT = np.array([        # ... and light ones: cream, ochre, sky blue, rose
+    [0.88, 0.85, 0.74],
+    [0.80, 0.62, 0.22],
+    [0.55, 0.68, 0.85],
+    [0.85, 0.55, 0.55],
 ])
 YARN_JITTER = 0.1         # relative brightness jitter per stripe
 TEXTURE_NAME = "cloth"
@@ -39,16 +41,16 @@ TEXTURE_SEED = 2026       # the one cloth every textured scene wears
 
 
 def _stripes(rng: np.random.Generator, size: int) -> np.ndarray:
-    """A colour ``(size, 3)`` per texture row (or column): consecutive stripes of random widths and colours,
-    never the same colour twice in a row, each stripe's brightness jittered."""
+    """A colour ``(size, 3)`` per texture row (or column): consecutive stripes of random widths, dark and light
+    in turn (every stripe edge is a step in brightness, so every crossing of two edges is a corner), each of a
+    random colour of its kind with its brightness jittered."""
     out = np.empty((size, 3))
-    k, prev = 0, -1
+    k, light = 0, bool(rng.integers(2))
     while k < size:
         width = int(rng.integers(STRIPE_PX[0], STRIPE_PX[1] + 1))
-        colour = int(rng.integers(len(PALETTE) - 1))
-        colour += int(prev >= 0 and colour >= prev)
-        out[k:k + width] = PALETTE[colour] * (1.0 + YARN_JITTER * rng.standard_normal())
-        prev, k = colour, k + width
+        palette = LIGHT if light else DARK
+        out[k:k + width] = palette[rng.integers(len(palette))] * (1.0 + YARN_JITTER * rng.standard_normal())
+        light, k = not light, k + width
     return out
 
 
