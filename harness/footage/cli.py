@@ -86,14 +86,14 @@ def track_video(args: argparse.Namespace) -> int:
     info = probe(args.video)
     roi = parse_roi(args.roi, info.width, info.height)
     intr, focal_source = intrinsics(info.width, info.height, args.fov, args.focal)
-    if args.fov is None and args.focal is None:
-        print(f"warning: no --fov or --focal: assuming {focal_source}; recovered distances scale with the focal "
-              f"length", file=sys.stderr)
     if args.elevation is not None:
         from harness.footage.recognise import gravity
 
         gravity(args.elevation, 1)          # checked now, not after the work
     db = None if args.database is None else load_database(args.database, info.fps)
+    if args.fov is None and args.focal is None:
+        print(f"warning: no --fov or --focal: assuming {focal_source}; recovered distances scale with the focal "
+              f"length", file=sys.stderr)
 
     bar = _progress(info.frames, "following", args.quiet)
     background = sample_frames(info, LEARN_HISTORY)
@@ -105,18 +105,20 @@ def track_video(args: argparse.Namespace) -> int:
                               f"than --min-seconds {args.min_seconds:g}")
     if not result.people:
         raise VideoInputError(f"{args.video}: no person found (nothing moved in {result.n_frames} frames)")
-    long_enough = [p for p in result.people if p.n_frames / info.fps >= args.min_seconds]
+    observations = {p.id: person_observation(p, info.fps, intr, args.elevation) for p in result.people}
+    # The engine runs on people followed long enough on whom features were found at all.
+    long_enough = [p for p in result.people
+                   if p.n_frames / info.fps >= args.min_seconds and observations[p.id].counts.sum() > 0]
     if not long_enough:
         longest = max(p.n_frames for p in result.people) / info.fps
-        raise VideoInputError(f"{args.video}: no person followed for --min-seconds {args.min_seconds:g} s (the "
-                              f"longest: {longest:.1f} s)")
+        raise VideoInputError(f"{args.video}: no person followed for --min-seconds {args.min_seconds:g} s with "
+                              f"features on them (the longest followed: {longest:.1f} s)")
 
     trained = db is None
     if trained:
         db = default_database(info.fps)
     body = BodyModel.load()
     engine = Tracker(db, body)
-    observations = {p.id: person_observation(p, info.fps, intr, args.elevation) for p in result.people}
     estimates, answers = {}, {}
     bar = _progress(len(long_enough), "engine", args.quiet, unit="person")
     for p in long_enough:
@@ -152,11 +154,12 @@ def track_video(args: argparse.Namespace) -> int:
 
 
 def people_table(result, answers: dict) -> str:
-    """``people.csv``: one row per person followed, in order of appearance."""
+    """``people.csv``: one row per person followed, in order of appearance (no timings: the same video gives
+    the same table)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["person", "first_frame", "last_frame", "frames", "seconds", "answer", "confidence", "top3",
-                "mean_flows", "height_px", "speed_heights_per_s", "grouped_frames", "engine_s"])
+                "mean_flows", "height_px", "speed_heights_per_s", "grouped_frames"])
     for p in sorted(result.people, key=lambda p: (p.first, p.id)):
         a = answers.get(p.id)
         counts = [len(f) for f in p.frame_flows()[1:]]
@@ -164,7 +167,7 @@ def people_table(result, answers: dict) -> str:
                     a.answer if a else "", f"{a.confidence:.3f}" if a else "",
                     "; ".join(f"{c} {v:.2f}" for c, v in a.top) if a else "",
                     f"{(sum(counts) / len(counts)) if counts else 0.0:.1f}", f"{p.height_px():.0f}",
-                    f"{p.speed(result.fps):.2f}", len(p.grouped), f"{a.seconds:.2f}" if a else ""])
+                    f"{p.speed(result.fps):.2f}", len(p.grouped)])
     return buf.getvalue()
 
 

@@ -2,8 +2,8 @@
 blobs removed, and the blobs that remain as detections.
 
 The background is learned before the pass that follows people (``Foreground.learn``): from an empty plate
-when one exists (rendered footage), else from frames spread over the whole clip, so that the first frames
-have no ghosts of people who stood there at the start. During the pass the model keeps adapting slowly: a
+when one exists (rendered footage), else from frames spread over the whole clip, starting from their median, so
+that the first frames have no ghosts of people who stood there at the start. During the pass the model keeps adapting slowly: a
 person who stands still for ``ABSORB_S`` seconds fades into the background (MOG2 moves a pixel's new colour
 into the background once its weight passes ``1 - background ratio``, 0.1 by default; at learning rate ``a``
 that takes ``ln(1 / 0.9) / a`` frames).
@@ -20,6 +20,10 @@ VAR_THRESHOLD = 25.0     # squared Mahalanobis distance a pixel must be from the
                          # compressed real footage flickers more than that around edges)
 SHADOW_VALUE = 127       # MOG2 marks shadow pixels with this value: they are not the person
 LEARN_HISTORY = 100      # frames the background is learned from before the pass (a clip's frames spread evenly)
+NOISE_FRAMES = 20        # ... of which this many, every NOISE_STRIDE-th pixel, measure the pixels' noise
+NOISE_STRIDE = 4
+MOVER_SIGMAS = 8.0       # a pixel this many noise deviations from the median is someone passing by (light drifting
+                         # 5% over a clip, 8 grey levels, stays below it at the usual 2-3 levels of noise)
 ABSORB_S = 10.0          # s a motionless person takes to become background during the pass
 CLOSE_PX = 7             # px, elliptical closing: joins a person's parts split by a thin post or a gap in the mask
 OPEN_PX = 3              # px, opening: removes speckle of compression noise
@@ -59,16 +63,28 @@ class Foreground:
     def learn(self, frames: list[np.ndarray]) -> None:
         """Learn the background from ``frames`` (an empty plate, or frames spread over the clip).
 
-        Their per-pixel median comes first: MOG2 starts its model from the first frame it sees, and the median
-        of frames spread over a clip is the empty scene wherever people pass by in less than half of them (a
-        first frame with people in it would leave their ghosts). Then every frame at MOG2's own rate (the
-        running mean over the frames seen, up to ``LEARN_HISTORY``), from which it learns the pixels' noise."""
+        MOG2 starts from the frames' per-pixel median (the empty scene wherever people pass by in less than half
+        of them), then learns from every frame how each pixel varies (noise, light that drifts), except where a
+        frame departs from the median by more than ``MOVER_SIGMAS`` times the pixels' noise (the median absolute
+        deviation over all pixels): there the median stands in, so that nobody who walks by enters the model. Fed
+        the frames as they are, MOG2 would keep whatever covers a pixel a tenth of the time as a second
+        background colour, a person who walks slowly across a short clip among them."""
+        import cv2
+
         if not frames:
             return
         stack = np.stack(frames)
-        self.subtractor.apply(np.partition(stack, len(stack) // 2, axis=0)[len(stack) // 2], learningRate=-1)
+        plate = np.partition(stack, len(stack) // 2, axis=0)[len(stack) // 2]
+        sample = stack[:NOISE_FRAMES, ::NOISE_STRIDE, ::NOISE_STRIDE].astype(np.int16)
+        sigma = max(1.4826 * float(np.median(np.abs(sample - plate[::NOISE_STRIDE, ::NOISE_STRIDE]))), 1.0)
+        self.subtractor.setVarInit(float(np.clip(sigma**2, self.subtractor.getVarMin(),
+                                                 self.subtractor.getVarMax())))
+        self.subtractor.apply(plate, learningRate=1.0)
+        grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (CLOSE_PX, CLOSE_PX))
         for frame in frames:
-            self.subtractor.apply(frame, learningRate=-1)
+            departs = np.abs(frame.astype(np.int16) - plate).max(axis=2) > MOVER_SIGMAS * sigma
+            mover = cv2.dilate(departs.astype(np.uint8), grow).astype(bool)
+            self.subtractor.apply(np.where(mover[..., None], plate, frame), learningRate=-1)
 
     def mask(self, frame: np.ndarray) -> np.ndarray:
         """The frame's foreground ``(H, W) uint8`` (255 moving, 0 background), shadows removed, cleaned."""

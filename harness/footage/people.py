@@ -14,8 +14,8 @@ Per frame, each person's box is predicted at constant velocity. Then, in order:
    silently.
 4. **Fragments**: an unassigned blob lying mostly (``FRAGMENT_SHARE``) inside where a person seen this frame
    may be (their predicted box and their blob) is a part of them cut off by a thin obstacle (a lamp post) and
-   joins them; a person whose predicted box lies mostly inside an older member's of the same blob was such a
-   piece followed apart, and ends.
+   joins them; a person whose predicted box lies almost wholly (``NESTED_SHARE``) inside an older member's of
+   the same blob, moving with them (``SAME_MOTION``), was such a piece followed apart, and ends.
 5. Blobs left start new people; a person not seen for ``MAX_MISSED_S`` seconds (``MAX_GROUPED_S`` while
    grouped) ends.
 """
@@ -28,6 +28,9 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 GROUP_SHARE = 0.5        # a blob holding this share of two predicted boxes is a group
+NESTED_SHARE = 0.8       # ... unless one box lies this much inside the other's and moves with it (within
+SAME_MOTION = 0.5        # this many body heights per second): a piece of one person followed apart, not a
+                         # second person (two walkers crossing differ by twice a walking pace, 1.6 heights/s)
 GATE = 0.6               # a blob whose centre is farther than this x the person's height is not theirs
 DISTANCE_WEIGHT = 1.0    # cost of a centre distance of one person's height, against a lost overlap of 1
 AMBIGUITY = 1.5          # a re-identification must be this much cheaper than any group partner's
@@ -99,6 +102,7 @@ class PeopleFollower:
     """Assigns each frame's blobs to people (state: the people being followed and the next free id)."""
 
     def __init__(self, fps: float):
+        self.fps = float(fps)
         self.max_missed = max(1, int(round(MAX_MISSED_S * fps)))
         self.max_grouped = max(1, int(round(MAX_GROUPED_S * fps)))
         self.people: dict[int, Person] = {}
@@ -159,7 +163,8 @@ class PeopleFollower:
                              key=lambda k: -self.people[ids[k]].hits)
             kept: list[int] = []
             for k in members:
-                if any(nested[k, j] >= GROUP_SHARE for j in kept):
+                if any(nested[k, j] >= NESTED_SHARE and self._same_motion(ids[k], ids[j], pred[j, 3])
+                       for j in kept):
                     ended.append(ids[k])
                     del self.people[ids[k]]
                 else:
@@ -171,6 +176,11 @@ class PeopleFollower:
                     self.people[i].group = frozenset(self.people[i].group | names) - {i}
                 grouped |= names
         return grouped
+
+    def _same_motion(self, a: int, b: int, height: float) -> bool:
+        """Whether people ``a`` and ``b`` move alike (within ``SAME_MOTION`` heights per second)."""
+        gap = np.linalg.norm(self.people[a].velocity - self.people[b].velocity) * self.fps
+        return bool(gap <= SAME_MOTION * max(height, 1.0))
 
     @staticmethod
     def _cost(pred: np.ndarray, boxes: np.ndarray) -> np.ndarray:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,24 +49,60 @@ def _fourcc(value: float) -> str:
     return text if text.isprintable() and text.strip() else "unknown"
 
 
+def _avi_codec(path: str | Path) -> str | None:
+    """The video codec an AVI file declares (its first video stream header's four characters), or None when
+    the file is no AVI: to name the codec of a file OpenCV will not open."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(1 << 16)
+    except OSError:
+        return None
+    if head[:4] != b"RIFF" or head[8:12] != b"AVI ":
+        return None
+    at = head.find(b"strh")             # stream header: "strh", its size (4 bytes), the stream type, the codec
+    while at >= 0 and head[at + 8:at + 12] != b"vids":
+        at = head.find(b"strh", at + 4)
+    if at < 0 or at + 16 > len(head):
+        return None
+    code = head[at + 12:at + 16]
+    return code.decode("latin-1") if code.isalnum() else None
+
+
+@contextmanager
+def _quiet():
+    """OpenCV's own log lines off (a file it cannot read is reported once, in one line, by the caller)."""
+    import cv2
+
+    previous = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(previous)
+
+
 def probe(path: str | Path) -> VideoInfo:
     """Open ``path`` with OpenCV, decode its first frame, and check the stated limits."""
     import cv2
 
     check_input_file(path, VideoInputError, "video", MAX_FILE_BYTES)
-    cap = cv2.VideoCapture(str(path))
-    try:
-        if not cap.isOpened():
-            raise VideoInputError(f"{path}: OpenCV cannot open it as a video (not a video file, or a container "
-                                  f"it cannot read)")
-        codec = _fourcc(cap.get(cv2.CAP_PROP_FOURCC))
-        ok, frame = cap.read()
-        if not ok or frame is None:
-            raise VideoInputError(f"{path}: OpenCV cannot decode its frames (codec {codec})")
-        fps = float(cap.get(cv2.CAP_PROP_FPS))
-        count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
-    finally:
-        cap.release()
+    with _quiet():
+        cap = cv2.VideoCapture(str(path))
+        try:
+            if not cap.isOpened():
+                codec = _avi_codec(path)
+                if codec is not None:
+                    raise VideoInputError(f"{path}: OpenCV cannot decode codec {codec} (no decoder for it)")
+                raise VideoInputError(f"{path}: OpenCV cannot open it as a video (not a video file, a container "
+                                      f"it cannot read, or a codec it has no decoder for)")
+            codec = _fourcc(cap.get(cv2.CAP_PROP_FOURCC))
+            ok, frame = cap.read()
+            if not ok or frame is None:
+                raise VideoInputError(f"{path}: OpenCV cannot decode its frames (codec {codec})")
+            fps = float(cap.get(cv2.CAP_PROP_FPS))
+            count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
+        finally:
+            cap.release()
     height, width = frame.shape[:2]
     if not (math.isfinite(fps) and 0.0 < fps <= MAX_FPS):
         raise VideoInputError(f"{path}: frame rate {fps:g} is not in (0, {MAX_FPS:g}] frames per second")
@@ -82,7 +119,8 @@ def read_frames(info: VideoInfo) -> Iterator[np.ndarray]:
     decode (the end, or a damaged tail). More than ``MAX_FRAMES`` frames is a ``VideoInputError``."""
     import cv2
 
-    cap = cv2.VideoCapture(info.path)
+    with _quiet():
+        cap = cv2.VideoCapture(info.path)
     try:
         for k in range(MAX_FRAMES + 1):
             ok, frame = cap.read()
