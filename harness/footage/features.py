@@ -17,6 +17,8 @@ import numpy as np
 MAX_CORNERS = 80         # per person: the default scene sees about 50-70 of its 100 markers, and the engine
                          # tempers a frame to a few flows' worth of evidence, so more adds time, not information
 QUALITY = 0.01           # Shi-Tomasi: the weaker eigenvalue at least this share of the region's strongest
+CANDIDATES = 4           # corners asked of Shi-Tomasi per corner wanted, for ``spread`` to choose from
+GRID_ROWS = 8            # ``spread``'s cells: the person's box in 8 rows of square cells (head, chest, ..., feet)
 MIN_DISTANCE_PX = 3      # px between corners (a 50 px tall person is about 15 px wide)
 BLOCK_PX = 3             # Shi-Tomasi's neighbourhood
 ERODE_PX = 4             # corners this far inside the mask (half the window): a window that holds background,
@@ -52,8 +54,8 @@ def corners(grey: np.ndarray, labels: np.ndarray, own: tuple[int, ...], box: np.
             count: int) -> np.ndarray:
     """Up to ``count`` Shi-Tomasi corners ``(K, 2)`` (OpenCV coordinates) on the blobs ``own`` of the label image
     ``labels (H, W)``, their mask eroded by ``ERODE_PX``, within ``box`` (``x, y, w, h``), at least
-    ``MIN_DISTANCE_PX`` from the ``existing (N, 2)`` points. Only the box is searched (the whole image would
-    cost ten times more)."""
+    ``MIN_DISTANCE_PX`` from the ``existing (N, 2)`` points, spread over the person (``spread``). Only the box is
+    searched (the whole image would cost ten times more)."""
     import cv2
 
     if count <= 0:
@@ -69,12 +71,44 @@ def corners(grey: np.ndarray, labels: np.ndarray, own: tuple[int, ...], box: np.
         cv2.circle(crop, (px - x0, py - y0), MIN_DISTANCE_PX, 0, -1)
     if not crop.any():
         return np.empty((0, 2))
-    found = cv2.goodFeaturesToTrack(np.ascontiguousarray(grey[y0:y1, x0:x1]), maxCorners=int(count),
+    found = cv2.goodFeaturesToTrack(np.ascontiguousarray(grey[y0:y1, x0:x1]), maxCorners=CANDIDATES * int(count),
                                     qualityLevel=QUALITY, minDistance=MIN_DISTANCE_PX, mask=crop,
                                     blockSize=BLOCK_PX, useHarrisDetector=False)
     if found is None:
         return np.empty((0, 2))
-    return found.reshape(-1, 2).astype(float) + [x0, y0]
+    found = found.reshape(-1, 2).astype(float) + [x0, y0]
+    return found[spread(found, existing, (x0, y0, x1 - x0, y1 - y0), count)]
+
+
+def spread(candidates: np.ndarray, existing: np.ndarray, box: tuple, count: int) -> np.ndarray:
+    """Indices of at most ``count`` of ``candidates (K, 2)`` (best first, as Shi-Tomasi returns them) spread over
+    ``box``: the box is cut into square cells (``GRID_ROWS`` rows) and the cells are filled evenly, those holding
+    fewer ``existing`` points first, each with its best corners.
+
+    The engine expects flows from points spread over the visible body (its model points are area-uniform, as the
+    harness's markers are); the strongest corners of a person cluster where the texture is boldest (a striped
+    shirt), and without the cells the legs of the rendered subject got few features."""
+    if len(candidates) == 0:
+        return np.empty(0, dtype=int)
+    x, y, w, h = box
+    cell = max(h / GRID_ROWS, 1.0)
+    cols = max(int(np.ceil(w / cell)), 1)
+
+    def cell_of(p):
+        return (np.clip(((p[:, 1] - y) // cell).astype(int), 0, GRID_ROWS - 1) * cols
+                + np.clip(((p[:, 0] - x) // cell).astype(int), 0, cols - 1))
+
+    c = cell_of(candidates)
+    held = np.bincount(cell_of(existing), minlength=GRID_ROWS * cols) if len(existing) else \
+        np.zeros(GRID_ROWS * cols, dtype=int)
+    # Rank of each candidate within its cell (0: its cell's best), plus what the cell already holds: filling
+    # level by level takes every cell's best before any cell's second.
+    order = np.argsort(c, kind="stable")
+    first = np.searchsorted(c[order], c[order])
+    rank = np.empty(len(c), dtype=int)
+    rank[order] = np.arange(len(c)) - first
+    level = rank + held[c]
+    return np.lexsort((np.arange(len(c)), level))[:count]
 
 
 @dataclass(frozen=True)
