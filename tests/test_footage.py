@@ -335,3 +335,15 @@ def test_real_footage_people_followed_and_answered_walk(tmp_path, capsys):
     assert len(long) >= 6
     moving = [r for r in long if float(r["speed_heights_per_s"]) >= 0.25]
     assert sum(r["answer"] == "walk" for r in moving) >= 0.7 * len(moving)
+
+
+def test_video_input_reaches_neither_the_scene_nor_the_evaluation():
+    """Real footage has no scene and no ground truth: ``harness.footage`` must work without either."""
+    from test_imports import import_graph
+
+    graph = import_graph()
+    footage = [m for m in graph if m.startswith("harness.footage")]
+    assert footage
+    for module in footage:
+        bad = [t for t in graph[module] if t.startswith(("harness.scene", "harness.evaluation"))]
+        assert not bad, f"{module} imports {bad}"

@@ -76,19 +76,17 @@ def track_video(args: argparse.Namespace) -> int:
 
     from harness.body import BodyModel
     from harness.engine import Tracker
+    from harness.footage.foreground import LEARN_HISTORY
     from harness.footage.pipeline import follow_people
     from harness.footage.reader import probe, read_frames, sample_frames
-    from harness.footage.foreground import LEARN_HISTORY
-    from harness.footage.recognise import (default_database, intrinsics, load_database, person_observation,
-                                           summarise)
+    from harness.footage.recognise import (default_database, gravity, intrinsics, load_database,
+                                           person_observation, summarise)
 
     _check(args)
     info = probe(args.video)
     roi = parse_roi(args.roi, info.width, info.height)
     intr, focal_source = intrinsics(info.width, info.height, args.fov, args.focal)
     if args.elevation is not None:
-        from harness.footage.recognise import gravity
-
         gravity(args.elevation, 1)          # checked now, not after the work
     db = None if args.database is None else load_database(args.database, info.fps)
     if args.fov is None and args.focal is None:
@@ -173,7 +171,6 @@ def people_table(result, answers: dict) -> str:
 
 def _write_video(path: Path, info, result, estimates: dict, intr, body, quiet: bool) -> None:
     import cv2
-    import numpy as np
 
     from harness.body import body_origins
     from harness.footage.annotate import annotate_frame
