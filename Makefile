@@ -32,10 +32,12 @@ regress: $(STAMP)
 rebaseline: $(STAMP)
 	$(PY) -m harness rebaseline --scenario scenarios/ci.yaml --baseline results/baseline --fresh
 
-# Acceptance checks that exit non-zero on a miss (scene geometry and rendering, the performer's nearest-class
-# requirement) and the retargeting table over the sample captures in ../shared/mocap/cmu. CI runs it.
+# Acceptance checks that exit non-zero on a miss (scene geometry and rendering, video flows against the surface
+# motion, the performer's nearest-class requirement) and the retargeting table over the sample captures in
+# ../shared/mocap/cmu. CI runs it.
 check: $(STAMP)
 	$(PY) benchmarks/scene_acceptance.py
+	$(PY) benchmarks/video_flows.py --runs 5
 	$(PY) benchmarks/nearest_class.py
 	$(PY) benchmarks/retarget_manifest.py
 
@@ -44,6 +46,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/engine_speed.py
 	$(PY) benchmarks/pose_evidence.py
 	$(PY) benchmarks/dask_throughput.py
+	$(PY) benchmarks/video_speed.py
 
 clean: clean-cache
 	rm -rf $(VENV) .pytest_cache

@@ -40,6 +40,9 @@ def main(argv=None) -> int:
                                                       "away: 20-25 degrees)")
     ap.add_argument("--fov", default=None, help="horizontal field of view (default: track-video's)")
     args = ap.parse_args(argv)
+    if not Path(args.video).is_file():
+        print(f"skipped: footage not found at {args.video} (the ../shared checkout is absent)")
+        return 0
     out = Path(args.out)
     if out.exists():
         shutil.rmtree(out)
