@@ -44,11 +44,12 @@ example: $(STAMP)
 	$(PY) -m harness evaluate examples/flowclf/compare.yaml --jobs 2 --fresh
 	$(PY) examples/flowclf/check.py results/flowclf_compare
 
-# Acceptance checks that exit non-zero on a miss (scene geometry and rendering, the performer's nearest-class
-# requirement), the retargeting table over the sample captures in ../shared/mocap/cmu and ../shared/mocap/bandai,
+# Acceptance checks that exit non-zero on a miss (scene geometry and rendering, video flows against the surface
+# motion, the performer's nearest-class requirement), the retargeting table over the sample captures in ../shared/mocap/cmu and ../shared/mocap/bandai,
 # and the capture library's own check. CI runs it.
 check: $(STAMP)
 	$(PY) benchmarks/scene_acceptance.py
+	$(PY) benchmarks/video_flows.py --runs 5
 	$(PY) benchmarks/nearest_class.py
 	$(PY) benchmarks/retarget_manifest.py
 	$(PY) -m harness check-library captures
@@ -63,6 +64,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/engine_speed.py
 	$(PY) benchmarks/pose_evidence.py
 	$(PY) benchmarks/dask_throughput.py
+	$(PY) benchmarks/video_speed.py
 
 clean: clean-cache
 	rm -rf $(VENV) .pytest_cache

@@ -14,6 +14,7 @@ import harness.engine.cli  # noqa: F401
 import harness.evaluation.cli  # noqa: F401
 import harness.evaluation.reproduce_cli  # noqa: F401
 import harness.evaluation.run_video  # noqa: F401
+import harness.footage.cli  # noqa: F401
 import harness.motion.capture_cli  # noqa: F401
 import harness.motion.render_cli  # noqa: F401
 import harness.scene.scene_cli  # noqa: F401

@@ -26,40 +26,76 @@ class VideoError(HarnessError):
 def write_video(path: str | Path, frames: Iterable[np.ndarray], fps: float) -> int:
     """Write RGB frames ``(H, W, 3) uint8`` to ``.mp4`` (OpenCV, mp4v) or ``.gif`` (Pillow), atomically.
 
-    Returns the number of frames written.
+    Returns the number of frames written. MP4 frames are streamed (``Mp4Writer``); a GIF holds them all.
     """
-    import cv2
-
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".mp4", ".gif"):
         raise VideoError(f"{path}: video files must end in .mp4 or .gif")
+    if suffix == ".mp4":
+        with Mp4Writer(path, fps) as writer:
+            for f in frames:
+                writer.write(f)
+        if writer.count == 0:
+            raise VideoError(f"{path}: no frames to write")
+        return writer.count
     frames = list(frames)
     if not frames:
         raise VideoError(f"{path}: no frames to write")
-    if suffix == ".gif":
-        from PIL import Image
+    from PIL import Image
 
-        images = [Image.fromarray(f) for f in frames]
+    images = [Image.fromarray(f) for f in frames]
 
-        def write(fh):
-            images[0].save(fh, format="GIF", save_all=True, append_images=images[1:],
-                           duration=int(round(1000.0 / fps)), loop=0)
-        write_atomic(path, write)
-        return len(frames)
-    h, w = frames[0].shape[:2]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp.mp4")
-    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h))
-    if not writer.isOpened():
-        raise VideoError(f"{path}: OpenCV cannot open an MP4 writer")
-    try:
-        for f in frames:
-            writer.write(cv2.cvtColor(np.ascontiguousarray(f), cv2.COLOR_RGB2BGR))
-    finally:
-        writer.release()
-    os.replace(tmp, path)
+    def write(fh):
+        images[0].save(fh, format="GIF", save_all=True, append_images=images[1:],
+                       duration=int(round(1000.0 / fps)), loop=0)
+    write_atomic(path, write)
     return len(frames)
+
+
+class Mp4Writer:
+    """An MP4 file written frame by frame (OpenCV, mp4v), so that a long video never sits in memory; atomic:
+    frames go to a hidden temporary file beside ``path``, renamed to ``path`` when the ``with`` block ends
+    without an error and at least one frame was written (else the temporary file is removed).
+
+    ``write(rgb)`` takes ``(H, W, 3) uint8`` RGB frames of one size; ``count`` frames were written.
+    """
+
+    def __init__(self, path: str | Path, fps: float):
+        self.path = Path(path)
+        if self.path.suffix.lower() != ".mp4":
+            raise VideoError(f"{self.path}: an MP4 writer's file must end in .mp4")
+        self.fps = float(fps)
+        self.tmp = self.path.with_name(f".{self.path.stem}.tmp.mp4")
+        self.writer = None
+        self.size: tuple[int, int] | None = None
+        self.count = 0
+
+    def __enter__(self) -> "Mp4Writer":
+        return self
+
+    def write(self, rgb: np.ndarray) -> None:
+        import cv2
+
+        h, w = rgb.shape[:2]
+        if self.writer is None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.writer = cv2.VideoWriter(str(self.tmp), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, (w, h))
+            if not self.writer.isOpened():
+                raise VideoError(f"{self.path}: OpenCV cannot open an MP4 writer")
+            self.size = (w, h)
+        elif (w, h) != self.size:
+            raise VideoError(f"{self.path}: frame {self.count} is {w}x{h}, the video {self.size[0]}x{self.size[1]}")
+        self.writer.write(cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR))
+        self.count += 1
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if self.writer is not None:
+            self.writer.release()
+        if exc_type is None and self.count > 0:
+            os.replace(self.tmp, self.path)
+        elif self.tmp.exists():
+            self.tmp.unlink()
 
 
 def add_spheres(scene: mujoco.MjvScene, centres: np.ndarray, radius: float, rgba) -> None:
@@ -108,3 +144,17 @@ def draw_flows(rgb: np.ndarray, flows: np.ndarray, outlier: np.ndarray | None = 
         start = (int(round(u - du * ARROW_SECONDS)), int(round(v - dv * ARROW_SECONDS)))
         cv2.arrowedLine(img, start, (int(round(u)), int(round(v))), colour, 1, cv2.LINE_AA, tipLength=0.3)
     return img
+
+
+def draw_skeleton(img: np.ndarray, uv: np.ndarray, parents: np.ndarray, rgb, front: np.ndarray,
+                  thickness: int = 2) -> None:
+    """Draw joints ``uv (J, 2)`` px joined parent to child (``parents (J,)``, -1 for a root) on ``img`` in
+    place; joints not in ``front (J,)`` (behind the camera) are left out."""
+    import cv2
+
+    pts = np.round(uv).astype(int)
+    for j, p in enumerate(parents):
+        if p >= 0 and front[j] and front[p]:
+            cv2.line(img, tuple(pts[p]), tuple(pts[j]), rgb, thickness, cv2.LINE_AA)
+    for j in np.flatnonzero(front):
+        cv2.circle(img, tuple(pts[j]), thickness + 1, rgb, -1, cv2.LINE_AA)

@@ -46,7 +46,7 @@ SCENARIOS = {
     "dropout_one": "name: x\nobservation: {dropout: 1.0}\n",
     "outliers_negative": "name: x\nobservation: {outliers: -1}\n",
     "noise_nan": "name: x\nobservation: {noise_px: .nan}\n",
-    "mode_video": "name: x\nobservation: {mode: video}\n",
+    "mode_film": "name: x\nobservation: {mode: film}\n",
     "particles_zero": "name: x\nengine: {tracks: {particles: 0}}\n",
     "init_distance_reversed": "name: x\nengine: {spawn: {distance: [5, 2]}}\n",
     "engine_noise_negative": "name: x\nengine: {likelihood: {noise_px: -1}}\n",

@@ -74,17 +74,6 @@ def find_run(results_dir: Path, run_key: str):
     return scenario, runs[run_key]
 
 
-def _skeleton(img: np.ndarray, uv: np.ndarray, parents: np.ndarray, rgb, front: np.ndarray) -> None:
-    import cv2
-
-    pts = np.round(uv).astype(int)
-    for j, p in enumerate(parents):
-        if p >= 0 and front[j] and front[p]:
-            cv2.line(img, tuple(pts[p]), tuple(pts[j]), rgb, 2, cv2.LINE_AA)
-    for j in np.flatnonzero(front):
-        cv2.circle(img, tuple(pts[j]), 3, rgb, -1, cv2.LINE_AA)
-
-
 def posterior_panel(post: np.ndarray, classes, label: str, t: int, height: int, width: int = PANEL_WIDTH
                     ) -> np.ndarray:
     """The class posterior ``(T, C)`` up to frame ``t`` as lines over time, ``(height, width, 3) uint8``."""
@@ -146,7 +135,8 @@ def render_run(results_dir: str | Path, run_key: str, method: str = "full") -> t
     from harness.pinhole import project
     from harness.scene.rendered import render_frames
     from harness.scene.setup import build_setup
-    from harness.video import draw_flows
+    from harness.scene.simulate import OUTLIER_ID
+    from harness.video import draw_flows, draw_skeleton
 
     run, inputs, est = method_estimate(results_dir, run_key, method)
     obs, truth, body = inputs.obs, inputs.truth, inputs.body
@@ -159,11 +149,11 @@ def render_run(results_dir: str | Path, run_key: str, method: str = "full") -> t
     classes = list(inputs.classes)
     frames = []
     for t, rgb in enumerate(render_frames(setup, setup.motion.qpos)):
-        img = draw_flows(rgb, obs.flows[t], truth.marker_ids[t] < 0)
+        img = draw_flows(rgb, obs.flows[t], truth.marker_ids[t] == OUTLIER_ID)
         # The truth is drawn last: it is the reference the estimate is read against.
         for joints, colour in ((est_cam[t], ESTIMATE_RGB), (true_cam[t], TRUE_RGB)):
             front = joints[:, 2] > 0.05
-            _skeleton(img, project(intr, np.where(front[:, None], joints, 1.0)), parents, colour, front)
+            draw_skeleton(img, project(intr, np.where(front[:, None], joints, 1.0)), parents, colour, front)
         # A stream's true label changes over time (transition frames have none among the classes).
         true = run.test_class if inputs.labels is None else str(inputs.labels[t])
         cv2.putText(img, f"{run_key}  t={t / obs.fps:.2f}s  true {true} (green), {method} (magenta)",

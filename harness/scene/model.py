@@ -11,24 +11,29 @@ import numpy as np
 from harness.body import BodyModel, SurfacePoints
 from harness.scene.markers import BODY_RGBA, add_marker_sites
 from harness.scene.occluders import Obstacle, add_occluder_geoms
+from harness.scene.texture import dress
 
 CAMERA_NAME = "scene"
 MAX_RENDER_SCALE = 4
 
 
 class SceneModel:
-    """Humanoid + markers (sites) + occluders (world geoms) + a camera that is moved every frame.
+    """Humanoid + markers (sites) + occluders (world geoms) + a camera that is moved every frame; the humanoid
+    darkened (so that rendered marker dots stand out) or, ``textured``, dressed in cloth.
 
     model/data: the compiled MuJoCo model and its data. camera_id: id of the scene camera.
     site_ids: ``(N,)`` site id of marker ``i``. obstacle_geoms: ``(K,)`` geom ids of the occluders.
     """
 
     def __init__(self, body: BodyModel, markers: SurfacePoints, boxes: list[Obstacle], fovy: float,
-                 width: int, height: int):
+                 width: int, height: int, textured: bool = False):
         spec = body.mjspec()
-        for mat in spec.materials:
-            if mat.name == "skin":
-                mat.rgba = BODY_RGBA
+        if textured:
+            dress(spec)           # cloth, for the video pipeline's corners (harness.scene.texture)
+        else:
+            for mat in spec.materials:
+                if mat.name == "skin":
+                    mat.rgba = BODY_RGBA
         add_marker_sites(spec, body, markers)
         add_occluder_geoms(spec, boxes)
         spec.worldbody.add_camera(name=CAMERA_NAME, fovy=float(fovy), pos=[0.0, 0.0, 0.0])

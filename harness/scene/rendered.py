@@ -24,7 +24,7 @@ import numpy as np
 from harness.scene.markers import DOT_GROUP
 from harness.scene.occluders import OCCLUDER_GROUP
 from harness.scene.setup import SceneSetup
-from harness.scene.visibility import VISIBLE
+from harness.scene.visibility import BODY_GROUP, VISIBLE
 
 DOT_THRESHOLD = 60          # greenness (0..255) above which a pixel belongs to a dot
 FB_MAX_PX = 0.5             # forward-backward Lucas-Kanade consistency, pixels
@@ -42,10 +42,12 @@ LK_WINDOW = (9, 9)         # px: small enough that a neighbouring dot rarely sha
 LK_LEVELS = 3
 
 
-def scene_option(dots: bool) -> mujoco.MjvOption:
-    """Render the body and the occluders; the marker dots only when ``dots``."""
+def scene_option(dots: bool, body: bool = True) -> mujoco.MjvOption:
+    """Render the body (unless not ``body``: the empty scene) and the occluders; the marker dots only when
+    ``dots``."""
     opt = mujoco.MjvOption()
     opt.geomgroup[OCCLUDER_GROUP] = 1
+    opt.geomgroup[BODY_GROUP] = int(body)
     opt.sitegroup[:] = 0
     if dots:
         opt.sitegroup[DOT_GROUP] = 1
@@ -53,16 +55,16 @@ def scene_option(dots: bool) -> mujoco.MjvOption:
 
 
 def render_frames(setup: SceneSetup, qpos: np.ndarray, depth: bool = False, dots: bool = True,
-                  scale: int = 1) -> Iterator[np.ndarray]:
+                  scale: int = 1, body: bool = True) -> Iterator[np.ndarray]:
     """Yield the camera's images: RGB ``(H, W, 3) uint8``, or depth ``(H, W)`` metres along the optical axis.
 
     ``scale`` renders ``scale`` times the camera's resolution (same field of view): pixel coordinates
-    scale by the same factor.
+    scale by the same factor. Without ``body``, the scene as it is without the subject (an empty plate).
     """
     scene, traj = setup.scene, setup.camera
     intr = traj.intrinsics
     quat = traj.mujoco_quat()
-    opt = scene_option(dots)
+    opt = scene_option(dots, body)
     with mujoco.Renderer(scene.model, scale * intr.height, scale * intr.width) as renderer:
         if depth:
             renderer.enable_depth_rendering()

@@ -21,7 +21,8 @@ def _args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--elevation", type=float, default=10.0, help="degrees above the look-at point")
     p.add_argument("--distance", type=float, default=4.0, help="metres from the look-at point")
     p.add_argument("--markers", type=int, default=100, help="number of surface markers")
-    p.add_argument("--mode", default="geometric", help="geometric or rendered observations")
+    p.add_argument("--mode", default="geometric",
+                   help="geometric, rendered (marker dots) or video (the body in cloth, track-video's pipeline)")
     p.add_argument("--noise", type=float, default=1.0, help="pixel noise (geometric mode), pixels")
     p.add_argument("--out", default="scene.mp4", help="video file (.mp4 or .gif)")
     p.add_argument("--png", default=None, help="also write frame FRAME as a PNG to this path")
@@ -80,12 +81,18 @@ def simulate_command(args: argparse.Namespace) -> int:
     return 0
 
 
-@command("scene-video", _args)
+def _video_args(p: argparse.ArgumentParser) -> None:
+    _args(p)
+    p.add_argument("--raw", action="store_true", help="the camera's images alone, without the flows drawn (with "
+                                                      "--mode video: footage to run track-video on)")
+
+
+@command("scene-video", _video_args)
 def scene_video(args: argparse.Namespace) -> int:
     """Video of the scene camera with the observed flows drawn (yellow; red for outliers)."""
     from harness.body import BodyModel
     from harness.scene.rendered import render_frames
-    from harness.scene.simulate import build_setup, simulate
+    from harness.scene.simulate import OUTLIER_ID, build_setup, simulate
     from harness.video import draw_flows, write_video
 
     _check_outputs(args)
@@ -94,8 +101,11 @@ def scene_video(args: argparse.Namespace) -> int:
     body = BodyModel.load()
     obs, truth = simulate(motion, spec, np.random.default_rng(args.seed), body)
     setup = build_setup(motion, spec, body)
-    frames = [draw_flows(rgb, obs.flows[t], truth.marker_ids[t] < 0)
-              for t, rgb in enumerate(render_frames(setup, motion.qpos))]
+    # Video mode's footage is the cloth itself (no marker dots); --raw leaves the flows off (footage for
+    # track-video).
+    images = render_frames(setup, motion.qpos, dots=spec.observation.mode != "video")
+    frames = [rgb if args.raw else draw_flows(rgb, obs.flows[t], truth.marker_ids[t] == OUTLIER_ID)
+              for t, rgb in enumerate(images)]
     if args.png:
         import cv2
 

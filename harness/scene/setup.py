@@ -59,7 +59,8 @@ def build_setup(motion: Motion, spec: SceneSpec, body: BodyModel | None = None) 
     obstacles = build_occluders(spec.occluders, traj, world, view, start_pose(motion.base_pos, motion.base_quat))
     check_camera_outside(obstacles, traj.pos,
                          "occluders.geoms" if spec.occluders.geoms else f"occluders.preset={spec.occluders.preset!r}")
-    scene = SceneModel(subject, markers, obstacles, spec.camera.fovy, spec.camera.width, spec.camera.height)
+    scene = SceneModel(subject, markers, obstacles, spec.camera.fovy, spec.camera.width, spec.camera.height,
+                       textured=spec.observation.mode == "video")
     normals = marker_normals(scene, motion.qpos, markers.normal)
     cause = classify(scene, motion.qpos, traj, world, normals)
     front = cam[..., 2] > 0

@@ -9,7 +9,9 @@ outlier rows are added (``M`` the visible count before dropout), uniform over th
 uniform in ``[-OUTLIER_SPEED, OUTLIER_SPEED]`` px/s per axis; rows are shuffled. Rendered mode replaces the
 projected markers by dots detected in MuJoCo images and tracked with Lucas-Kanade (``harness.scene.rendered``;
 no synthetic pixel noise is added there, the image processing has its own), then applies the same
-dropout, outliers and shuffling.
+dropout, outliers and shuffling. Video mode renders the subject in cloth and finds its flows with
+``track-video``'s pipeline (``harness.scene.footage``: background subtraction, corners, Lucas-Kanade; no
+synthetic noise, no marker ids), then the same dropout, outliers and shuffling.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from harness.motion.motion import Motion
 from harness.observation import Observation
 from harness.pinhole import Intrinsics, in_image
 from harness.scene.camera import camera_velocity
+from harness.scene.footage import video_flows
 from harness.scene.occluders import GEOM_TYPES, Obstacle
 from harness.scene.rendered import rendered_flows
 from harness.scene.setup import SceneSetup, build_setup
@@ -37,6 +40,7 @@ __all__ = ["GroundTruth", "SceneSetup", "SceneWarning", "build_setup", "finish_f
            "simulate"]
 
 OUTLIER_SPEED = 300.0   # px/s: bound of each outlier velocity component (10 px per frame at 30 fps)
+OUTLIER_ID = -1         # the ground-truth marker id of an outlier row
 
 
 class SceneWarning(UserWarning):
@@ -47,8 +51,9 @@ class SceneWarning(UserWarning):
 class GroundTruth:
     """What the engine must not see; ``T`` frames, ``N`` markers.
 
-    marker_ids: per frame ``(M_t,)`` int, the marker of each flow row, -1 for outlier rows (and, in rendered
-    mode, for tracked dots that match no visible marker). markers: the placement, in the frames of the
+    marker_ids: per frame ``(M_t,)`` int, the marker of each flow row, -1 (``OUTLIER_ID``) for outlier rows (and,
+    in rendered mode, for tracked dots that match no visible marker), -2 for video mode's features (no markers:
+    ``harness.scene.footage.FEATURE_ID``). markers: the placement, in the frames of the
     observed subject's bodies. qpos: ``(T, 57)`` world, the observed subject's configurations.
     base_pos_cam: ``(T, 3)`` m and base_quat_cam: ``(T, 4)`` wxyz, the base in the camera frame (OpenCV).
     camera_pos: ``(T, 3)`` world m. camera_rot: ``(T, 3, 3)`` world-from-camera, OpenCV axes as columns.
@@ -146,7 +151,7 @@ def finish_frames(frames: list[tuple[np.ndarray, np.ndarray]], obs: ObservationS
         pos = rng.uniform([0.0, 0.0], [intr.width, intr.height], size=(n_out, 2))
         vel = rng.uniform(-OUTLIER_SPEED, OUTLIER_SPEED, size=(n_out, 2))
         rows = np.concatenate([rows, np.concatenate([pos, vel], axis=1)])
-        idx = np.concatenate([idx, np.full(n_out, -1, dtype=int)])
+        idx = np.concatenate([idx, np.full(n_out, OUTLIER_ID, dtype=int)])
         order = rng.permutation(len(rows))
         flows.append(rows[order])
         ids.append(idx[order])
@@ -169,6 +174,8 @@ def simulate(motion: Motion, spec: SceneSpec, rng: np.random.Generator, body: Bo
     motion = setup.motion
     if spec.observation.mode == "rendered":
         frames = rendered_flows(setup, motion.qpos, motion.fps)
+    elif spec.observation.mode == "video":
+        frames = video_flows(setup, motion.qpos, motion.fps)
     else:
         frames = geometric_flows(setup.pixels, visible, motion.fps, spec.observation.noise_px,
                                  traj.intrinsics, rng)

@@ -17,7 +17,7 @@ from harness.errors import HarnessError
 from harness.pinhole import MAX_IMAGE_SIDE
 
 CAMERA_MOTIONS = ("static", "orbit", "follow")
-OBSERVATION_MODES = ("geometric", "rendered")
+OBSERVATION_MODES = ("geometric", "rendered", "video")
 CAMERA_PRIORS = ("none", "gravity", "floor")
 OCCLUDER_GEOM_TYPES = ("box", "cylinder", "capsule")
 MAX_OCCLUSION_AMOUNT = 0.9      # a preset cannot be calibrated to hide everything: some lines of sight pass
@@ -189,7 +189,9 @@ class ObservationSpec:
     """How flows are measured (docs/scene.md, "Flows")."""
 
     mode: str = _param("geometric", "", ", ".join(OBSERVATION_MODES),
-                       "projected markers, or dots detected in MuJoCo images and tracked by Lucas-Kanade")
+                       "projected markers; dots detected in MuJoCo images and tracked by Lucas-Kanade; or the body "
+                       "rendered in cloth and its flows found by track-video's pipeline (docs/video.md; static "
+                       "camera)")
     noise_px: float = _param(1.0, "px", ">= 0", "std of the Gaussian noise on each measured position "
                                                 "(geometric mode)")
     dropout: float = _param(0.0, "probability", "[0, 1)", "a visible flow is dropped")
@@ -256,3 +258,7 @@ class SceneSpec:
                            ("observation", ObservationSpec), ("subject", SubjectSpec)):
             value = getattr(self, name)
             _require(isinstance(value, kind), name, type(value).__name__, f"must be a {kind.__name__}")
+        # Background subtraction learns one background: the camera must stand still.
+        _require(self.observation.mode != "video" or self.camera.motion == "static", "camera.motion",
+                 self.camera.motion, "observation.mode 'video' finds people by background subtraction and needs a "
+                 "static camera")
