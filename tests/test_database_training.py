@@ -139,6 +139,37 @@ def test_the_database_learns_an_unmeasured_joint_from_the_other_classes(body):
     assert np.all(measured_features(waves[0])[[j, 50 + j]]) and not np.any(measured_features(held[0])[[j, 50 + j]])
 
 
+def test_a_chain_per_source_is_each_sources_own_fit_and_an_absent_source_is_never_entered(body, tmp_path):
+    """``by_source``: the squats of two sources (``studio`` with a bias on one joint) and the waves of one. Each
+    squat chain is the one-source fit of its own demonstrations (exactly the chain a database of that source alone
+    learns), the waves' missing source is a chain the recursion never enters, forwards or backwards, and the file
+    keeps the layout."""
+    from harness.engine.reverse import reversed_database
+
+    rng = np.random.default_rng(5)
+    j = body.angle_index("lfemur_y")
+    squats = [m.replace(source="procedural") for m in synthetic_demos(body, "squat", 3, rng)]
+    studio = []
+    for m in synthetic_demos(body, "squat", 3, rng):
+        q = np.array(m.qpos)
+        q[:, 7 + j] += 0.4
+        studio.append(m.replace(qpos=q, source="studio"))
+    waves = [m.replace(source="procedural") for m in synthetic_demos(body, "wave", 3, rng)]
+    db = MotionDatabase(n_states=4, n_iter=3, mirrored=False, by_source=True).fit(squats + studio + waves)
+    assert db.sources_ == ("procedural", "studio") and db.means_.shape == (2, 8, N_FEATURES) and db.n_chains == 2
+    squat, wave = list(db.classes_).index("squat"), list(db.classes_).index("wave")
+    alone = MotionDatabase(n_states=4, n_iter=3, mirrored=False).fit(studio)
+    np.testing.assert_allclose(db.means_[squat, 4:], alone.means_[0], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(db.startprob_[squat].reshape(2, 4).sum(axis=1), [0.5, 0.5])
+    np.testing.assert_array_equal(db.startprob_[wave, 4:], 0.0)              # no studio wave
+    assert db.startprob_[wave, :4].sum() == pytest.approx(1.0)
+    assert not np.any(db.transmat_[:, :4, 4:]) and not np.any(db.transmat_[:, 4:, :4])
+    np.testing.assert_array_equal(reversed_database(db).startprob_[wave, 4:], 0.0)
+    db.save(tmp_path / "db.npz")
+    back = MotionDatabase.load(tmp_path / "db.npz")
+    assert back.sources_ == db.sources_ and back.n_chains == 2 and np.array_equal(back.means_, db.means_)
+
+
 class _OneState:
     """A one-state, one-class database: the state posterior is 1 in every frame."""
 

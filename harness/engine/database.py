@@ -69,14 +69,16 @@ class MotionDatabase:
     (Baum-Welch iterations), ``mirrored`` (each HMM also holds its mirror-image chain: ``S = 2K`` states, module
     docstring; else ``S = K``), ``floor`` (``(106,)`` variance floor per feature, kept by every M-step; default
     ``variance_floor()``), ``background`` (also a class ``unknown``: an ergodic HMM of every class's frames
-    pooled, ``training.fit_background``, the database's "none of these").
+    pooled, ``training.fit_background``, the database's "none of these"), ``by_source`` (a chain per source of
+    demonstrations in each primitive: ``procedural``, each capture set; module docstring).
     Learned (after ``fit``): ``classes_`` (C,), ``cyclic_`` (C,) bool (whether each primitive's HMM started with
     a wrap), ``means_`` (C, S, 106), ``covars_`` (C, S, 106) diagonal variances, ``transmat_`` (C, S, S),
     ``startprob_`` (C, S), ``fps_``. Users of the HMMs take ``S`` from the arrays, not from ``n_states``.
     """
 
     def __init__(self, n_states: int = DEFAULT_STATES, cyclic: Iterable[str] = (), n_iter: int = 15,
-                 mirrored: bool = True, floor: np.ndarray | None = None, background: bool = False):
+                 mirrored: bool = True, floor: np.ndarray | None = None, background: bool = False,
+                 by_source: bool = False):
         if n_states < 2:
             raise EngineError(f"n_states must be >= 2, got {n_states}")
         if n_iter < 0:
@@ -86,6 +88,8 @@ class MotionDatabase:
         self.n_iter = int(n_iter)
         self.mirrored = bool(mirrored)
         self.background = bool(background)
+        self.by_source = bool(by_source)
+        self.sources_: tuple[str, ...] = ()
         self.floor = variance_floor() if floor is None else np.asarray(floor, dtype=float)
         if self.floor.shape != (N_FEATURES,) or not np.all(np.isfinite(self.floor)) or np.any(self.floor <= 0):
             raise EngineError(f"floor must be {N_FEATURES} positive variances, got shape {self.floor.shape}")
@@ -107,26 +111,33 @@ class MotionDatabase:
         classes += [UNKNOWN] if self.background else []
         K = self.n_states
         floor = self.floor
-        means = np.empty((len(classes), K, N_FEATURES))
+        self.sources_ = tuple(sorted({m.source for m in motions})) if self.by_source else ("",)
+        G = len(self.sources_)
+        means = np.empty((len(classes), G * K, N_FEATURES))
         covars = np.empty_like(means)
-        trans = np.empty((len(classes), K, K))
-        start = np.empty((len(classes), K))
+        trans = np.zeros((len(classes), G * K, G * K))
+        start = np.zeros((len(classes), G * K))
         feats = [motion_features(m) for m in motions]
         masks = [np.broadcast_to(measured_features(m), f.shape) for m, f in zip(motions, feats)]
         population = self._population(motions if population is None else population)
         for c, label in enumerate(classes):
             if label == UNKNOWN:
-                means[c], covars[c], trans[c], start[c] = fit_background(feats, masks, n_states=K, floor=floor,
-                                                                         population=population)
+                chain = fit_background(feats, masks, n_states=K, floor=floor, population=population)
+                self._place(c, [chain] * G, [True] * G, means, covars, trans, start)
                 continue
             own = [i for i, m in enumerate(motions) if m.label == label]
             short = [len(feats[i]) for i in own if len(feats[i]) < K]
             if short:
                 raise EngineError(f"class {label!r}: a demonstration of {short[0]} frames is shorter than "
                                   f"the {K} states")
-            means[c], covars[c], trans[c], start[c] = fit_primitive(
-                [feats[i] for i in own], [masks[i] for i in own], n_states=K, cyclic=label in self.cyclic,
-                floor=floor, n_iter=self.n_iter, population=population)
+            groups = [[i for i in own if not self.by_source or motions[i].source == s] for s in self.sources_]
+            chains = {g: fit_primitive([feats[i] for i in idx], [masks[i] for i in idx], n_states=K,
+                                       cyclic=label in self.cyclic, floor=floor, n_iter=self.n_iter,
+                                       population=population) for g, idx in enumerate(groups) if idx}
+            first = next(iter(chains.values()))
+            # A source without demonstrations of the class keeps a copy of a chain, never entered (start 0).
+            self._place(c, [chains.get(g, first) for g in range(G)], [g in chains for g in range(G)], means,
+                        covars, trans, start)
         self.classes_ = np.array(classes)
         self.cyclic_ = np.isin(self.classes_, list(self.cyclic))
         if self.mirrored:
@@ -134,6 +145,15 @@ class MotionDatabase:
         self.means_, self.covars_, self.transmat_, self.startprob_ = means, covars, trans, start
         self.fps_ = float(fps.pop())
         return self
+
+    def _place(self, c: int, chains: list, live: list[bool], means, covars, trans, start) -> None:
+        """Class ``c``'s chains side by side: block-diagonal transitions, the start shared equally by the live
+        chains."""
+        K = self.n_states
+        for g, (m, v, a, pi) in enumerate(chains):
+            span = slice(g * K, (g + 1) * K)
+            means[c, span], covars[c, span], trans[c, span, span] = m, v, a
+            start[c, span] = pi / sum(live) if live[g] else 0.0
 
     def _population(self, motions: Sequence[Motion]) -> tuple[np.ndarray, np.ndarray]:
         """``(106,)`` mean and variance of the measured frames of ``motions`` (no frame: 0 and the floor)."""
@@ -162,8 +182,9 @@ class MotionDatabase:
 
     @property
     def n_chains(self) -> int:
-        """Chains of ``n_states`` states per primitive: 2 for a both-handed database, else 1."""
-        return 2 if self.mirrored else 1
+        """Chains of ``n_states`` states per primitive: one per source (``by_source``), twice for a both-handed
+        database."""
+        return (2 if self.mirrored else 1) * max(1, len(self.sources_))
 
     def last_states(self) -> np.ndarray:
         """Indices of each chain's last state (a non-cyclic primitive's end rest, absorbing)."""
@@ -216,7 +237,7 @@ class MotionDatabase:
             "covars": self.covars_, "transmat": self.transmat_, "startprob": self.startprob_,
             "fps": np.array(self.fps_), "cyclic": np.array(self.cyclic, dtype=str),
             "n_iter": np.array(self.n_iter), "mirrored": np.array(self.mirrored), "floor": self.floor,
-            "background": np.array(self.background),
+            "background": np.array(self.background), "sources": np.array(self.sources_, dtype=str),
         }
 
     def save(self, path: str | Path) -> None:
@@ -232,9 +253,12 @@ class MotionDatabase:
                 mirrored = bool(z["mirrored"]) if "mirrored" in z.files else False
                 # Files written before issue 24 were trained with the group floor alone.
                 floor = z["floor"].astype(float) if "floor" in z.files else group_floor()
-                db = cls(n_states=z["means"].shape[1] // (2 if mirrored else 1), cyclic=[str(c) for c in z["cyclic"]],
-                         n_iter=int(z["n_iter"]), mirrored=mirrored, floor=floor,
-                         background=bool(z["background"]) if "background" in z.files else False)
+                sources = tuple(str(s) for s in z["sources"]) if "sources" in z.files else ("",)
+                db = cls(n_states=z["means"].shape[1] // ((2 if mirrored else 1) * len(sources)),
+                         cyclic=[str(c) for c in z["cyclic"]], n_iter=int(z["n_iter"]), mirrored=mirrored,
+                         floor=floor, background=bool(z["background"]) if "background" in z.files else False,
+                         by_source=len(sources) > 1 or sources != ("",))
+                db.sources_ = sources
                 db.classes_ = z["classes"].astype(str)
                 db.cyclic_ = np.isin(db.classes_, list(db.cyclic))
                 db.means_, db.covars_ = z["means"].astype(float), z["covars"].astype(float)

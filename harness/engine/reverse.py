@@ -79,16 +79,19 @@ def _chains(a: np.ndarray) -> np.ndarray:
     return linked.astype(float)
 
 
-def reversed_start(transmat: np.ndarray) -> np.ndarray:
+def reversed_start(transmat: np.ndarray, startprob: np.ndarray | None = None) -> np.ndarray:
     """``(..., S)``: where the reversed chains start: the forward chains' absorbing states, or, for a chain
-    without one (cyclic), uniformly over it. Both chains of a both-handed database share the mass equally,
-    as their forward starts do."""
+    without one (cyclic), uniformly over it. The chains the forward recursion can enter (``startprob``; None:
+    all) share the mass equally, as their forward starts do; a chain it never enters (a source without
+    demonstrations of the primitive) is never entered backwards either."""
     a = np.asarray(transmat, dtype=float)
     ends = (np.diagonal(a, axis1=-2, axis2=-1) >= 1.0 - 1e-9).astype(float)
     chain = _chains(a)
-    # Each chain's absorbing states if it has any, else the whole chain; one unit of mass per chain.
+    # Each chain's absorbing states if it has any, else the whole chain; one unit of mass per live chain.
     start = np.where(np.einsum("...ij,...j->...i", chain, ends) > 0, ends, 1.0)
     start = start / np.einsum("...ij,...j->...i", chain, start)
+    if startprob is not None:
+        start = start * (np.einsum("...ij,...j->...i", chain, np.asarray(startprob, dtype=float)) > 0)
     return start / start.sum(axis=-1, keepdims=True)
 
 
@@ -99,7 +102,7 @@ def reversed_database(db: MotionDatabase) -> MotionDatabase:
     out.means_ = db.means_ * _REVERSAL_SIGN
     out.covars_ = db.covars_.copy()
     out.transmat_ = reversed_transitions(db.transmat_)
-    out.startprob_ = reversed_start(db.transmat_)
+    out.startprob_ = reversed_start(db.transmat_, db.startprob_)
     return out
 
 

@@ -159,6 +159,7 @@ def database_key(cfg: Scenario, training: list[Motion]) -> dict:
     (states, cyclic classes, both-handed or not) and the code version."""
     db = cfg.database
     return {"states": db.states, "cyclic": list(CYCLIC), "mirrored": db.mirrored, "background": db.background,
+            "by_source": db.by_source,
             "format": DATABASE_FORMAT, "code": code_version(), "training": [training_identity(m) for m in training]}
 
 
@@ -174,7 +175,7 @@ def database(cfg: Scenario, test: Motion | None, cache_dir: str | Path) -> tuple
 
     def build():
         return MotionDatabase(n_states=cfg.database.states, cyclic=CYCLIC, mirrored=cfg.database.mirrored,
-                              background=cfg.database.background).fit(training)
+                              background=cfg.database.background, by_source=cfg.database.by_source).fit(training)
 
     cached(path, build, lambda obj, fh: np.savez(fh, **obj.to_arrays()), lambda p: None)
     return _stored_database(str(path)), str(path)

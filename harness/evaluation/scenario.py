@@ -105,6 +105,7 @@ class DatabaseConfig(_Section):
     states: int = Field(20, ge=2, le=500)   # HMM states per primitive (per side)
     mirrored: bool = True                   # both-handed: each HMM also holds its mirror-image chain
     background: bool = False                # also a class "unknown": an ergodic HMM of every class's frames
+    by_source: bool = False                 # a chain per source of demonstrations (procedural, each capture set)
     seed: int = Field(0, ge=0)              # training seed (demo generation and HMM initialisation)
     fps: float = Field(30.0, gt=0, le=1000)  # frames per second of training and test motions
 
