@@ -33,7 +33,7 @@ _KEEP_TRACKS = {"tracks.prune_nats": 1e12, "tracks.merge_m": 0.0, "tracks.merge_
 
 def copies(db: MotionDatabase, n_classes: int) -> MotionDatabase:
     """A database of ``n_classes`` primitives: the first ones of ``db``, then copies of its HMMs renamed."""
-    out = MotionDatabase(db.n_states, db.cyclic, db.n_iter, db.mirrored)
+    out = MotionDatabase(db.n_states, cyclic=db.cyclic, n_iter=db.n_iter, mirrored=db.mirrored)
     take = np.arange(n_classes) % len(db.classes_)
     out.classes_ = np.array([f"{db.classes_[c]}#{i // len(db.classes_)}" if i >= len(db.classes_)
                              else db.classes_[c] for i, c in enumerate(take)])

@@ -31,7 +31,7 @@ def test_the_main_job_plays_back_captured_people_from_the_library(monkeypatch):
     monkeypatch.delenv("HARNESS_MOCAP_DIR", raising=False)
     scenario = resolve_capture(load_scenario(ROOT / "scenarios" / "default.yaml"))
     assert scenario.database.capture_dirs == (str(LIBRARY / "cmu"), str(LIBRARY / "bandai"))
-    assert scenario.test.motions == "both" and scenario.database.source == "procedural"
+    assert scenario.test.motions == "both" and scenario.database.source == "both" and scenario.database.by_source
 
 
 @pytest.mark.parametrize("name", ["cmu", "bandai"])

@@ -76,7 +76,7 @@ class MotionDatabase:
     ``startprob_`` (C, S), ``fps_``. Users of the HMMs take ``S`` from the arrays, not from ``n_states``.
     """
 
-    def __init__(self, n_states: int = DEFAULT_STATES, cyclic: Iterable[str] = (), n_iter: int = 15,
+    def __init__(self, n_states: int = DEFAULT_STATES, *, cyclic: Iterable[str] = (), n_iter: int = 15,
                  mirrored: bool = True, floor: np.ndarray | None = None, background: bool = False,
                  by_source: bool = False):
         if n_states < 2:
@@ -123,7 +123,7 @@ class MotionDatabase:
         for c, label in enumerate(classes):
             if label == UNKNOWN:
                 chain = fit_background(feats, masks, n_states=K, floor=floor, population=population)
-                self._place(c, [chain] * G, [True] * G, means, covars, trans, start)
+                self._place(c, [chain] * G, [True] * G, (means, covars, trans, start))
                 continue
             own = [i for i, m in enumerate(motions) if m.label == label]
             short = [len(feats[i]) for i in own if len(feats[i]) < K]
@@ -136,8 +136,8 @@ class MotionDatabase:
                                        population=population) for g, idx in enumerate(groups) if idx}
             first = next(iter(chains.values()))
             # A source without demonstrations of the class keeps a copy of a chain, never entered (start 0).
-            self._place(c, [chains.get(g, first) for g in range(G)], [g in chains for g in range(G)], means,
-                        covars, trans, start)
+            self._place(c, [chains.get(g, first) for g in range(G)], [g in chains for g in range(G)],
+                        (means, covars, trans, start))
         self.classes_ = np.array(classes)
         self.cyclic_ = np.isin(self.classes_, list(self.cyclic))
         if self.mirrored:
@@ -146,9 +146,10 @@ class MotionDatabase:
         self.fps_ = float(fps.pop())
         return self
 
-    def _place(self, c: int, chains: list, live: list[bool], means, covars, trans, start) -> None:
-        """Class ``c``'s chains side by side: block-diagonal transitions, the start shared equally by the live
-        chains."""
+    def _place(self, c: int, chains: list, live: list[bool], out: tuple) -> None:
+        """Class ``c``'s chains side by side in ``out`` (means, covars, transitions, start): block-diagonal
+        transitions, the start shared equally by the live chains."""
+        means, covars, trans, start = out
         K = self.n_states
         for g, (m, v, a, pi) in enumerate(chains):
             span = slice(g * K, (g + 1) * K)
