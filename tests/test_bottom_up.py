@@ -41,20 +41,20 @@ def test_the_numpy_network_is_scikit_learns():
     rng = np.random.default_rng(0)
     x, y = rng.normal(size=(64, N_FEATURES)), rng.normal(size=(64, N_OUTPUTS))
     net = MLPRegressor(hidden_layer_sizes=(16, 8), max_iter=20, random_state=0).fit(x, y)
-    model = BottomUpModel(net.coefs_, net.intercepts_, np.zeros(N_FEATURES), np.ones(N_FEATURES),
-                          np.zeros(N_OUTPUTS), np.ones(N_OUTPUTS), np.ones(N_OUTPUTS), np.zeros((8, 6)), np.zeros(6))
+    rest = dict(x_mean=np.zeros(N_FEATURES), x_std=np.ones(N_FEATURES), y_mean=np.zeros(N_OUTPUTS),
+                y_std=np.ones(N_OUTPUTS), residual_std=np.ones(N_OUTPUTS), scale_w=np.zeros((8, 6)), scale_b=np.zeros(6))
+    model = BottomUpModel(net.coefs_, net.intercepts_, **rest)
     np.testing.assert_allclose(model.hidden_and_outputs(x[:5])[1], net.predict(x[:5]), rtol=1e-9, atol=1e-12)
     # and after the export's single precision, within its rounding
     again = BottomUpModel(*[[a.astype(np.float32).astype(float) for a in part] for part in (net.coefs_,
-                                                                                             net.intercepts_)],
-                          np.zeros(N_FEATURES), np.ones(N_FEATURES), np.zeros(N_OUTPUTS), np.ones(N_OUTPUTS),
-                          np.ones(N_OUTPUTS), np.zeros((8, 6)), np.zeros(6))
+                                                                                             net.intercepts_)], **rest)
     np.testing.assert_allclose(again.hidden_and_outputs(x[:5])[1], net.predict(x[:5]), atol=1e-4)
 
 
 def test_a_model_of_the_wrong_size_is_refused():
     with pytest.raises(Exception, match="maps"):
-        BottomUpModel([np.zeros((10, 4)), np.zeros((4, N_OUTPUTS))], [np.zeros(4), np.zeros(N_OUTPUTS)], *([None] * 7))
+        BottomUpModel([np.zeros((10, 4)), np.zeros((4, N_OUTPUTS))], [np.zeros(4), np.zeros(N_OUTPUTS)],
+                      **dict.fromkeys(("x_mean", "x_std", "y_mean", "y_std", "residual_std", "scale_w", "scale_b")))
 
 
 def test_features_ignore_the_flows_order_and_where_the_body_is():

@@ -174,9 +174,9 @@ class BottomUpModel:
     group's log variance scale. Arrays from ``bottom_up.npz`` (``BottomUpModel.load``; ``to_arrays`` writes
     them)."""
 
-    def __init__(self, weights: list[np.ndarray], biases: list[np.ndarray], x_mean: np.ndarray, x_std: np.ndarray,
-                 y_mean: np.ndarray, y_std: np.ndarray, residual_std: np.ndarray, scale_w: np.ndarray,
-                 scale_b: np.ndarray, info: str = ""):
+    def __init__(self, weights: list[np.ndarray], biases: list[np.ndarray], *, x_mean: np.ndarray,
+                 x_std: np.ndarray, y_mean: np.ndarray, y_std: np.ndarray, residual_std: np.ndarray,
+                 scale_w: np.ndarray, scale_b: np.ndarray, info: str = ""):
         if len(weights) != len(biases) or not weights:
             raise EngineError("a bottom-up model needs as many weight matrices as bias vectors, at least one")
         if weights[0].shape[0] != N_FEATURES or weights[-1].shape[1] != N_OUTPUTS:
@@ -196,8 +196,9 @@ class BottomUpModel:
             raise EngineError(f"{path}: no bottom-up model (python -m harness train-posture writes it)") from None
         n = int(a["layers"])
         return cls([a[f"w{i}"].astype(float) for i in range(n)], [a[f"b{i}"].astype(float) for i in range(n)],
-                   a["x_mean"], a["x_std"], a["y_mean"], a["y_std"], a["residual_std"], a["scale_w"].astype(float),
-                   a["scale_b"].astype(float), str(a["info"]))
+                   x_mean=a["x_mean"], x_std=a["x_std"], y_mean=a["y_mean"], y_std=a["y_std"],
+                   residual_std=a["residual_std"], scale_w=a["scale_w"].astype(float),
+                   scale_b=a["scale_b"].astype(float), info=str(a["info"]))
 
     def to_arrays(self) -> dict:
         """The ``.npz`` contents (weights in single precision: the file ships in the repository)."""

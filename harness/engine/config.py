@@ -137,10 +137,8 @@ class BottomUpSettings(_Section, name="bottomup"):
                                  "two modes, the rest the coarse prior")
     spawn_rotation_std: float = setting(0.15, "rad", ">= 0", "least rotation spread of those draws")
     spawn_depth_std: float = setting(0.1, "", ">= 0", "least spread of their depth's log")
-    weigh_posture: bool = setting(True, "", "", "a track's particles are weighed at its belief fused with the "
+    weigh_posture: bool = setting(False, "", "", "a track's particles are weighed at its belief fused with the "
                                   "estimate's posture (its nearer mode)")
-    evidence_weight: float = setting(0.0, "", ">= 0", "a track's evidence also gains this times the frame's "
-                                     "likelihood at its pose under that posture")
     reinject: bool = setting(True, "", "", "re-injection also tries the turn and depth to the estimate's modes")
     recovery_weight: float = setting(1.0, "", ">= 0", "recovery's prior: the estimate's posture precision times "
                                      "this, fused with the belief's (0: the belief's alone)")

@@ -50,43 +50,25 @@ class PoseSource(Protocol):
 
     def predict(self, frame: Frame, tracks: list[Track]) -> None: ...
 
-    def posture_distributions(self, frame: Frame, tracks: list[Track], mixtures: list | None = None):
+    def posture_distributions(self, frame: Frame, tracks: list[Track], mixtures: list):
         """Each track's belief fused with the bottom-up posture of the estimate's mode nearer the track's pose
         (``Scorer.posture_distributions``; ``PostureEstimate.posture_near``), one term per track, or None
         without an estimate or when a track's belief is a mixture of several terms (streams weighed by
-        belief). Made once per frame: the weighing and the evidence (``posture_evidence``) share it."""
+        belief)."""
         est = frame.posture
         if est is None:
             return None
-        key = (frame.index, tuple(t.id for t in tracks))
-        if self._posture is not None and self._posture[0] == key:
-            return self._posture[1]
-        mixtures = mixtures if mixtures is not None else [t.pose_mixture(self.track_settings) for t in tracks]
         if any(len(w) != 1 for w, _ in mixtures):
             return None
         quats = np.array([t.pose[1] if t.pose is not None else t.cloud.estimate()[1] for t in tracks])
         postures = [est.posture_near(r) for r in geometry.to_matrix(quats)]
-        dists = self.scorer.posture_distributions(np.concatenate([rows for _, rows in mixtures]), postures, 1.0)
-        self._posture = (key, dists)
-        return dists
-
-    def posture_evidence(self, frame: Frame, tracks: list[Track]) -> np.ndarray:
-        """``(J,)`` each track's tempered log-likelihood of the frame at its pose under its belief fused with the
-        bottom-up posture (``posture_distributions``; recognition's tempering); zeros without an estimate."""
-        dists = self.posture_distributions(frame, tracks) if frame.has_flows else None
-        if dists is None:
-            return np.zeros(len(tracks))
-        return self.scorer.pose_log_likelihood(frame, np.array([t.pose[1] for t in tracks]),
-                                               np.array([t.pose[0] for t in tracks]), dists,
-                                               np.arange(len(tracks)), n_eff=self.scorer.settings.n_eff_recognition)
+        return self.scorer.posture_distributions(np.concatenate([rows for _, rows in mixtures]), postures, 1.0)
 
     def weigh(self, frame: Frame, tracks: list[Track]) -> None: ...
 
     def reinject(self, frame: Frame, tracks: list[Track]) -> list[Track]: ...
 
     def manage(self, tracks: list[Track]) -> list[Track]: ...
-
-    def posture_evidence(self, frame: Frame, tracks: list[Track]) -> np.ndarray: ...
 
     def known_pose(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None: ...
 
@@ -118,35 +100,19 @@ class GivenPose:
     def predict(self, frame: Frame, tracks: list[Track]) -> None:
         pass
 
-    def posture_distributions(self, frame: Frame, tracks: list[Track], mixtures: list | None = None):
+    def posture_distributions(self, frame: Frame, tracks: list[Track], mixtures: list):
         """Each track's belief fused with the bottom-up posture of the estimate's mode nearer the track's pose
         (``Scorer.posture_distributions``; ``PostureEstimate.posture_near``), one term per track, or None
         without an estimate or when a track's belief is a mixture of several terms (streams weighed by
-        belief). Made once per frame: the weighing and the evidence (``posture_evidence``) share it."""
+        belief)."""
         est = frame.posture
         if est is None:
             return None
-        key = (frame.index, tuple(t.id for t in tracks))
-        if self._posture is not None and self._posture[0] == key:
-            return self._posture[1]
-        mixtures = mixtures if mixtures is not None else [t.pose_mixture(self.track_settings) for t in tracks]
         if any(len(w) != 1 for w, _ in mixtures):
             return None
         quats = np.array([t.pose[1] if t.pose is not None else t.cloud.estimate()[1] for t in tracks])
         postures = [est.posture_near(r) for r in geometry.to_matrix(quats)]
-        dists = self.scorer.posture_distributions(np.concatenate([rows for _, rows in mixtures]), postures, 1.0)
-        self._posture = (key, dists)
-        return dists
-
-    def posture_evidence(self, frame: Frame, tracks: list[Track]) -> np.ndarray:
-        """``(J,)`` each track's tempered log-likelihood of the frame at its pose under its belief fused with the
-        bottom-up posture (``posture_distributions``; recognition's tempering); zeros without an estimate."""
-        dists = self.posture_distributions(frame, tracks) if frame.has_flows else None
-        if dists is None:
-            return np.zeros(len(tracks))
-        return self.scorer.pose_log_likelihood(frame, np.array([t.pose[1] for t in tracks]),
-                                               np.array([t.pose[0] for t in tracks]), dists,
-                                               np.arange(len(tracks)), n_eff=self.scorer.settings.n_eff_recognition)
+        return self.scorer.posture_distributions(np.concatenate([rows for _, rows in mixtures]), postures, 1.0)
 
     def weigh(self, frame: Frame, tracks: list[Track]) -> None:
         for track in tracks:
@@ -157,9 +123,6 @@ class GivenPose:
 
     def manage(self, tracks: list[Track]) -> list[Track]:
         return tracks
-
-    def posture_evidence(self, frame: Frame, tracks: list[Track]) -> np.ndarray:
-        return np.zeros(len(tracks))        # one track at the given pose: nothing to compare
 
 
 class ParticleTracks:
@@ -186,7 +149,6 @@ class ParticleTracks:
         self._screened: dict = {}                # re-injection's screened snapshots (``screen``)
         self._drawn_at: int | None = None        # the frame whose weighing ``start`` drew the tracks from
         self._belief = new_recognizer(scorer.model.db, belief)    # ``new_belief``'s original
-        self._posture = None                     # this frame's ``posture_distributions``, by frame and tracks
 
     def new_belief(self) -> Recognizer:
         """A new track's belief (``track.new_recognizer``), copied: building one checks the whole database and
@@ -376,35 +338,19 @@ class ParticleTracks:
             at += n * k
         return out
 
-    def posture_distributions(self, frame: Frame, tracks: list[Track], mixtures: list | None = None):
+    def posture_distributions(self, frame: Frame, tracks: list[Track], mixtures: list):
         """Each track's belief fused with the bottom-up posture of the estimate's mode nearer the track's pose
         (``Scorer.posture_distributions``; ``PostureEstimate.posture_near``), one term per track, or None
         without an estimate or when a track's belief is a mixture of several terms (streams weighed by
-        belief). Made once per frame: the weighing and the evidence (``posture_evidence``) share it."""
+        belief)."""
         est = frame.posture
         if est is None:
             return None
-        key = (frame.index, tuple(t.id for t in tracks))
-        if self._posture is not None and self._posture[0] == key:
-            return self._posture[1]
-        mixtures = mixtures if mixtures is not None else [t.pose_mixture(self.track_settings) for t in tracks]
         if any(len(w) != 1 for w, _ in mixtures):
             return None
         quats = np.array([t.pose[1] if t.pose is not None else t.cloud.estimate()[1] for t in tracks])
         postures = [est.posture_near(r) for r in geometry.to_matrix(quats)]
-        dists = self.scorer.posture_distributions(np.concatenate([rows for _, rows in mixtures]), postures, 1.0)
-        self._posture = (key, dists)
-        return dists
-
-    def posture_evidence(self, frame: Frame, tracks: list[Track]) -> np.ndarray:
-        """``(J,)`` each track's tempered log-likelihood of the frame at its pose under its belief fused with the
-        bottom-up posture (``posture_distributions``; recognition's tempering); zeros without an estimate."""
-        dists = self.posture_distributions(frame, tracks) if frame.has_flows else None
-        if dists is None:
-            return np.zeros(len(tracks))
-        return self.scorer.pose_log_likelihood(frame, np.array([t.pose[1] for t in tracks]),
-                                               np.array([t.pose[0] for t in tracks]), dists,
-                                               np.arange(len(tracks)), n_eff=self.scorer.settings.n_eff_recognition)
+        return self.scorer.posture_distributions(np.concatenate([rows for _, rows in mixtures]), postures, 1.0)
 
     def weigh(self, frame: Frame, tracks: list[Track]) -> None:
         if self.reinjection_settings.every:

@@ -172,9 +172,6 @@ class Tracker:
         evidence = self.scorer.recognise(frame, [t.recognizer for t in self.tracks],
                                          np.array([p for p, _ in poses]), np.array([q for _, q in poses]),
                                          pose_given=self.source.fixed)
-        weight = self.config.bottomup.evidence_weight
-        if weight > 0 and frame.posture is not None:
-            evidence = evidence + weight * self.source.posture_evidence(frame, self.tracks)
         for track, gained, pose in zip(self.tracks, evidence, poses):
             track.log_evidence += gained
             track.remember(frame.index, pose)
@@ -220,7 +217,9 @@ class Tracker:
         intr, fps, _ = self._sequence
         model = reversed_model(self.model)
         settings = self.config.offline
-        back = Tracker(model.db, model.body, replace(self.config, offline=replace(settings, backward_pass=False)),
+        # The bottom-up estimator learned forward time: the backward pass runs without it.
+        back = Tracker(model.db, model.body, replace(self.config, offline=replace(settings, backward_pass=False),
+                                                     bottomup=replace(self.config.bottomup, enabled=False)),
                        model=model)
         source = back.particle_tracks(self.source.rng, SettledStarts,
                                       starts=settled_starts(self.tracks, model.n_classes, settings.backward_live_only))

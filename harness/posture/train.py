@@ -54,9 +54,9 @@ def fit(x: np.ndarray, y: np.ndarray, clips: np.ndarray, *, seed: int = 0, holdo
     t0 = time.perf_counter()
     net.fit((x[~held] - x_mean) / x_std, (y[~held] - y_mean) / y_std)
     seconds = time.perf_counter() - t0
-    model = BottomUpModel([w.copy() for w in net.coefs_], [b.copy() for b in net.intercepts_], x_mean, x_std, y_mean,
-                          y_std, np.ones(bottom_up.N_OUTPUTS), np.zeros((HIDDEN[-1], len(GROUPS))),
-                          np.zeros(len(GROUPS)))
+    model = BottomUpModel([w.copy() for w in net.coefs_], [b.copy() for b in net.intercepts_], x_mean=x_mean,
+                          x_std=x_std, y_mean=y_mean, y_std=y_std, residual_std=np.ones(bottom_up.N_OUTPUTS),
+                          scale_w=np.zeros((HIDDEN[-1], len(GROUPS))), scale_b=np.zeros(len(GROUPS)))
     h, pred = model.hidden_and_outputs(x[held])
     resid = y[held] - pred
     model.residual_std = resid.std(axis=0) + 1e-9
