@@ -159,3 +159,29 @@ def test_the_first_cloud_takes_its_share_about_both_modes():
     np.testing.assert_allclose(out.positions[200:, :2] / out.positions[200:, 2:], [[0.1 / 4.0, 0.2 / 4.0]] * 200,
                                atol=1e-12)
     assert source.with_bottom_up(wide, Frame(0, INTR, 30.0, np.zeros((0, 4)))) is wide
+
+
+def test_re_injections_alternatives_turn_a_track_onto_each_mode():
+    from harness.engine.config import BottomUpSettings, ReinjectionSettings
+    from harness.engine.frame import Frame
+    from harness.engine.pose_source import ParticleTracks
+    from harness.engine.track import Track
+
+    heading = geometry.to_matrix(geometry.yaw(np.array([0.7])))[0]
+    parent_rot = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]).T     # upright, level camera
+    mode = canonical(parent_rot @ heading, np.zeros(106))[0]
+    est = bottom_up.PostureEstimate(mode, np.array([0.0, 0.5, 5.0]), np.zeros(106), np.ones(106), 0.1, 0.1)
+    source = ParticleTracks.__new__(ParticleTracks)
+    source.bottomup_settings, source.reinjection_settings = BottomUpSettings(), ReinjectionSettings()
+    parent = Track(0, "lead", None)
+    parent.pose = (np.array([0.0, 0.4, 4.0]), geometry.from_matrix(parent_rot))
+    alts = source.bottom_up_alternatives(parent, Frame(0, INTR, 30.0, np.zeros((0, 4)), posture=est))
+    assert [a.name for a in alts] == ["bottomup0", "bottomup1"]
+    for alt, (rot, _) in zip(alts, est.pose_modes()):
+        pos, quat = alt.apply(parent.pose[0][None], parent.pose[1][None], None)
+        assert pos[0, 2] == pytest.approx(5.0)
+        turned = geometry.to_matrix(quat)[0]
+        # the turn about the parent's vertical brings its forward axis onto the mode's, seen from above
+        f, g = turned[:, 0], rot[:, 0]
+        assert np.degrees(abs(np.arctan2(f[2], f[0]) - np.arctan2(g[2], g[0]))) % 360 == pytest.approx(0, abs=1e-6)
+    assert source.bottom_up_alternatives(parent, Frame(0, INTR, 30.0, np.zeros((0, 4)))) == []
