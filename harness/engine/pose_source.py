@@ -50,20 +50,6 @@ class PoseSource(Protocol):
 
     def predict(self, frame: Frame, tracks: list[Track]) -> None: ...
 
-    def posture_distributions(self, frame: Frame, tracks: list[Track], mixtures: list):
-        """Each track's belief fused with the bottom-up posture of the estimate's mode nearer the track's pose
-        (``Scorer.posture_distributions``; ``PostureEstimate.posture_near``), one term per track, or None
-        without an estimate or when a track's belief is a mixture of several terms (streams weighed by
-        belief)."""
-        est = frame.posture
-        if est is None:
-            return None
-        if any(len(w) != 1 for w, _ in mixtures):
-            return None
-        quats = np.array([t.pose[1] if t.pose is not None else t.cloud.estimate()[1] for t in tracks])
-        postures = [est.posture_near(r) for r in geometry.to_matrix(quats)]
-        return self.scorer.posture_distributions(np.concatenate([rows for _, rows in mixtures]), postures, 1.0)
-
     def weigh(self, frame: Frame, tracks: list[Track]) -> None: ...
 
     def reinject(self, frame: Frame, tracks: list[Track]) -> list[Track]: ...
@@ -99,20 +85,6 @@ class GivenPose:
 
     def predict(self, frame: Frame, tracks: list[Track]) -> None:
         pass
-
-    def posture_distributions(self, frame: Frame, tracks: list[Track], mixtures: list):
-        """Each track's belief fused with the bottom-up posture of the estimate's mode nearer the track's pose
-        (``Scorer.posture_distributions``; ``PostureEstimate.posture_near``), one term per track, or None
-        without an estimate or when a track's belief is a mixture of several terms (streams weighed by
-        belief)."""
-        est = frame.posture
-        if est is None:
-            return None
-        if any(len(w) != 1 for w, _ in mixtures):
-            return None
-        quats = np.array([t.pose[1] if t.pose is not None else t.cloud.estimate()[1] for t in tracks])
-        postures = [est.posture_near(r) for r in geometry.to_matrix(quats)]
-        return self.scorer.posture_distributions(np.concatenate([rows for _, rows in mixtures]), postures, 1.0)
 
     def weigh(self, frame: Frame, tracks: list[Track]) -> None:
         for track in tracks:
