@@ -17,6 +17,7 @@ import harness.evaluation.run_video  # noqa: F401
 import harness.footage.cli  # noqa: F401
 import harness.motion.capture_cli  # noqa: F401
 import harness.motion.render_cli  # noqa: F401
+import harness.posture.cli  # noqa: F401
 import harness.scene.scene_cli  # noqa: F401
 from harness.commands import COMMANDS, command
 from harness.errors import HarnessError

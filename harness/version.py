@@ -1,5 +1,6 @@
 """The code version that results depend on: the package version plus a hash of the harness sources and the
-tables shipped with them (``*.json``: the performer's calibration, the database's human floor).
+tables and models shipped with them (``*.json``: the performer's calibration, the database's human floor;
+``*.npz``: the bottom-up posture estimator).
 
 It is part of every scenario hash and database cache key, so that runs and databases made by other code are
 recognised as stale instead of being mixed with new ones. Modules that only read and format stored results
@@ -24,7 +25,7 @@ def code_version() -> str:
     """``<package version>+<first 12 hex digits of the SHA-256 over the sources and tables>`` (paths and
     contents, sorted)."""
     digest = hashlib.sha256()
-    for path in sorted([*PACKAGE_DIR.rglob("*.py"), *PACKAGE_DIR.rglob("*.json")]):
+    for path in sorted([*PACKAGE_DIR.rglob("*.py"), *PACKAGE_DIR.rglob("*.json"), *PACKAGE_DIR.rglob("*.npz")]):
         rel = path.relative_to(PACKAGE_DIR).as_posix()
         if rel in RESULTS_ONLY:
             continue

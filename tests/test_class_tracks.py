@@ -175,15 +175,11 @@ def test_the_depth_guess_finds_a_whole_body_within_ten_percent(body, all_primiti
     assert guess / pos[1, 2] == pytest.approx(1.0, abs=0.1)
 
 
-@pytest.mark.xfail(strict=True, reason="known miss (issue 21): with recognition from the velocities given the "
-                   "positions (recognise_velocities) the lead after the second frame is the track at 0.89, 0.81 and "
-                   "0.81 of the true depth at 3, 4 and 6 m (1.03, 0.97 and 0.84 with the flows' likelihood; 120 "
-                   "evenly spread model points, 2026-12-06); the tracks' evidence no longer weighs the body's size "
-                   "in the image, and one frame tells depth only as sharply as the posture is known "
-                   "(docs/log/2026-12-06-depth-and-posture.md). Strict, so a fix shows here")
 def test_the_spawned_lead_is_within_ten_percent_of_the_true_depth(body, all_primitives):
-    """Issue 21's known miss, fixed by issue 24's database (the human variance floor and masked training): the
-    spawned lead at 1.03, 0.96 and 1.01 of the true depth at 3, 4 and 6 m (0.89, 0.85 and 0.98 before)."""
+    """Issue 21's known miss, fixed by issue 61's bottom-up posture (half the first cloud drawn about its pose,
+    ``bottomup.spawn_share``): the lead after the second frame at 0.98, 0.96 and 0.99 of the true depth at 3, 4
+    and 6 m; 0.89, 0.81 and 0.81 without it (recognition from the velocities given the positions weighs the body's
+    size in the image little)."""
     ratios = []
     for distance in (3.0, 4.0, 6.0):
         obs, pos, _ = _scripted_wave(body, distance)

@@ -72,7 +72,7 @@ def test_a_five_line_scenario_gets_the_documented_defaults():
     assert (s.engine.tracks.particles, s.engine.model.points, s.engine.model.seed, s.engine.spawn.distance) == \
         (50, 120, 7, (2.0, 8.0))
     assert parse_scenario({"name": "small"}).engine.tracks.particles == 500
-    assert s.methods == ("full", "full_smoothed", "gt_base", "no_database", "joint_space")
+    assert s.methods == ("full", "full_smoothed", "gt_base", "no_database", "bottom_up", "joint_space")
 
 
 def test_conditions_are_the_cartesian_product_last_key_fastest():

@@ -130,6 +130,22 @@ class RecoverySettings(_Section, name="recovery"):
 
 
 @dataclass(frozen=True)
+class BottomUpSettings(_Section, name="bottomup"):
+    """The bottom-up posture (``bottom_up``): a learned estimate from each window of flows, up to the twin, used
+    as the first frame's pose prior, as re-injection's alternatives and as recovery's posture prior."""
+    enabled: bool = setting(True, "", "", "estimate the posture from each window of flows (the shipped model)")
+    spawn_share: float = setting(0.5, "", "[0, 1]", "first frame's pose prior: this share about the estimate's "
+                                 "two modes, the rest the coarse prior")
+    spawn_rotation_std: float = setting(0.15, "rad", ">= 0", "least rotation spread of those draws")
+    spawn_depth_std: float = setting(0.1, "", ">= 0", "least spread of their depth's log")
+    weigh_posture: bool = setting(False, "", "", "a track's particles are weighed at its belief fused with the "
+                                  "estimate's posture (its nearer mode)")
+    reinject: bool = setting(True, "", "", "re-injection also tries the turn and depth to the estimate's modes")
+    recovery_weight: float = setting(1.0, "", ">= 0", "recovery's prior: the estimate's posture precision times "
+                                     "this, fused with the belief's (0: the belief's alone)")
+
+
+@dataclass(frozen=True)
 class OfflineSettings(_Section, name="offline"):
     """The offline (hindsight) estimate: the backward pass and the trajectory smoother."""
     smoothing_frames: float = setting(2.0, "frames", ">= 0", "std of the offline trajectory smoother")
@@ -150,6 +166,7 @@ class TrackerConfig:
     tracks: TracksSettings = field(default_factory=TracksSettings)
     reinjection: ReinjectionSettings = field(default_factory=ReinjectionSettings)
     recovery: RecoverySettings = field(default_factory=RecoverySettings)
+    bottomup: BottomUpSettings = field(default_factory=BottomUpSettings)
     offline: OfflineSettings = field(default_factory=OfflineSettings)
 
     def __post_init__(self):

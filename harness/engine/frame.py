@@ -27,7 +27,8 @@ class Frame:
     flows: ``(M, 4)`` ``(u, v, du, dv)`` pixels and pixels/s; camera_motion: ``(6,)`` the camera's linear (m/s)
     and angular (rad/s) velocity in its own frame, or None (static); gravity: ``(3,)`` unit vector in the camera
     frame, or None; camera_height: metres above the floor, or None; open: the open region now, or None (negative
-    evidence off)."""
+    evidence off); posture: the bottom-up estimate of the window of flows ending here
+    (``bottom_up.PostureEstimate``), or None (none made, or too few flows)."""
 
     index: int
     intr: Intrinsics
@@ -37,6 +38,7 @@ class Frame:
     gravity: np.ndarray | None = None
     camera_height: float | None = None
     open: OpenMask | None = None
+    posture: object | None = None
 
     @property
     def dt(self) -> float:

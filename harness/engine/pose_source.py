@@ -26,8 +26,8 @@ import numpy as np
 
 from harness import geometry
 from harness.body.model import mirror_angles
-from harness.engine.config import (BeliefSettings, MotionSettings, ReinjectionSettings, SpawnSettings,
-                                   TracksSettings)
+from harness.engine.config import (BeliefSettings, BottomUpSettings, MotionSettings, ReinjectionSettings,
+                                   SpawnSettings, TracksSettings)
 from harness.engine.frame import Frame
 from harness.engine.logsum import logsumexp
 from harness.engine.particle_filter import (ParticleCloud, ProcessNoise, camera_pitch, effective_sample_size,
@@ -108,8 +108,9 @@ class ParticleTracks:
 
     def __init__(self, scorer: Scorer, rng: np.random.Generator, *, spawn: SpawnSettings, tracks: TracksSettings,
                  motion: MotionSettings, reinjection: ReinjectionSettings, belief: BeliefSettings,
-                 min_position_std: float):
+                 min_position_std: float, bottomup: BottomUpSettings = BottomUpSettings()):
         self.scorer = scorer
+        self.bottomup_settings = bottomup
         self.rng = rng
         self.spawn_settings, self.track_settings, self.motion_settings = spawn, tracks, motion
         self.reinjection_settings, self.belief_settings = reinjection, belief
@@ -182,11 +183,35 @@ class ParticleTracks:
         wide = initial_cloud(frame.intr, frame.flows, n_wide, rng, depth_range=cfg.distance,
                              world_from_camera=cameras, body_extent=model.body_extent,
                              band=cfg.depth_band)
+        wide = self.with_bottom_up(wide, frame)
         prior = self._belief.posterior
         coarse = self.scorer.pose_log_likelihood(frame, wide.quats, wide.positions, model.dists.mixture(prior.ravel()),
                                                  n_eff=self.scorer.settings.n_eff_filter)
         wide = wide.take(np.argsort(coarse)[::-1][:int(round(cfg.keep * n_wide))])
         return wide, self.class_log_likelihoods(frame, wide, prior), np.log(prior.sum(axis=1))
+
+    def with_bottom_up(self, wide: ParticleCloud, frame: Frame) -> ParticleCloud:
+        """The first cloud with its last ``bottomup.spawn_share`` replaced by draws about the bottom-up estimate's
+        two poses (``PostureEstimate.pose_modes``, half each): the first frame's pose prior is then the mixture
+        ``(1 - a) p_coarse + a g`` of the coarse prior and the estimate's distribution ``g`` (rotation noise of
+        the estimate's own std, at least ``spawn_rotation_std``; the depth's log with its std, at least
+        ``spawn_depth_std``, along the ray of the estimate's base point). Particles are exact draws of that prior,
+        so the weighing that follows needs no correction. Unchanged without an estimate."""
+        cfg, est = self.bottomup_settings, frame.posture
+        n = int(round(cfg.spawn_share * len(wide))) if est is not None else 0
+        if n == 0:
+            return wide
+        rng = self.rng
+        modes = est.pose_modes()
+        which = rng.random(n) < 0.5
+        rot = np.where(which[:, None, None], modes[1][0], modes[0][0])
+        rot_std = max(est.rotation_std, cfg.spawn_rotation_std)
+        quats = geometry.multiply(geometry.exp(rng.normal(size=(n, 3)) * rot_std), geometry.from_matrix(rot))
+        depth = np.exp(rng.normal(size=n) * max(est.log_depth_std, cfg.spawn_depth_std))
+        positions = est.position[None] * depth[:, None]
+        keep = len(wide) - n
+        return ParticleCloud(np.concatenate([wide.positions[:keep], positions]),
+                             np.concatenate([wide.quats[:keep], geometry.normalize(quats)]), wide.log_weights.copy())
 
     def class_log_likelihoods(self, frame: Frame, cloud: ParticleCloud, prior: np.ndarray) -> np.ndarray:
         """``(C, N)`` tempered log-likelihoods ``log p(y | x, c)`` of poses under each primitive, each its own
@@ -269,7 +294,9 @@ class ParticleTracks:
         tracks and mixture terms in one kernel call."""
         mixtures = [t.pose_mixture(self.track_settings) for t in tracks]
         pose_index, state_index = mixture_pairs([len(t.cloud) for t in tracks], [len(w) for w, _ in mixtures])
-        mixes = self.scorer.model.dists.mixtures(np.concatenate([rows for _, rows in mixtures]))
+        mixes = self.posture_distributions(frame, tracks, mixtures) if self.bottomup_settings.weigh_posture else None
+        if mixes is None:
+            mixes = self.scorer.model.dists.mixtures(np.concatenate([rows for _, rows in mixtures]))
         pos = np.concatenate([t.cloud.positions for t in tracks])[pose_index]
         quat = np.concatenate([t.cloud.quats for t in tracks])[pose_index]
         ll = self.scorer.pose_log_likelihood(frame, quat, pos, mixes, state_index,
@@ -282,6 +309,20 @@ class ParticleTracks:
                        logsumexp(ll[at:at + n * k].reshape(k, n) + log_w[:, None], axis=0))
             at += n * k
         return out
+
+    def posture_distributions(self, frame: Frame, tracks: list[Track], mixtures: list):
+        """Each track's belief fused with the bottom-up posture of the estimate's mode nearer the track's pose
+        (``Scorer.posture_distributions``; ``PostureEstimate.posture_near``), one term per track, or None
+        without an estimate or when a track's belief is a mixture of several terms (streams weighed by
+        belief)."""
+        est = frame.posture
+        if est is None:
+            return None
+        if any(len(w) != 1 for w, _ in mixtures):
+            return None
+        quats = np.array([t.pose[1] if t.pose is not None else t.cloud.estimate()[1] for t in tracks])
+        postures = [est.posture_near(r) for r in geometry.to_matrix(quats)]
+        return self.scorer.posture_distributions(np.concatenate([rows for _, rows in mixtures]), postures, 1.0)
 
     def weigh(self, frame: Frame, tracks: list[Track]) -> None:
         if self.reinjection_settings.every:
@@ -322,10 +363,20 @@ class ParticleTracks:
         own = Alternative("own")
         screened, self._screened = screen(self.scorer, self._frames, [p.history for p in parents],
                                           [own] + self._alternatives, self._screened)
-        jobs = [(parent, self._alternatives[int(np.argmax(s[1:]))]) for parent, s in zip(parents, screened)
-                if s[1:].max() > s[0]]
+        # The bottom-up estimate's poses, as each parent's turn and depth scale to them (their own screen: they
+        # differ from parent to parent, so the cache of the common alternatives does not hold them).
+        extras = [self.bottom_up_alternatives(p, frame) for p in parents]
+        jobs = []
+        for parent, s, alts in zip(parents, screened, extras):
+            scored = list(zip(s[1:], self._alternatives))
+            if alts:
+                own_too = screen(self.scorer, self._frames, [parent.history], [own] + alts)[0][0]
+                scored += list(zip(own_too[1:], alts))
+            best, alt = max(scored, key=lambda c: c[0])
+            if best > s[0]:
+                jobs.append((parent, alt))
         replayed = replay(self.scorer, self._frames, [p.history for p, _ in jobs], [a for _, a in jobs])
-        penalty = np.log(len(self._alternatives))
+        penalty = np.log(len(self._alternatives) + max((len(a) for a in extras), default=0))
         out = list(tracks)
         for (parent, alt), (score, rec, history) in zip(jobs, replayed):
             score -= penalty
@@ -344,6 +395,22 @@ class ParticleTracks:
                                         geometry.to_matrix(newcomer.pose[1]), refined=False))
             self._spawned += 1
             out.append(newcomer)
+        return out
+
+    def bottom_up_alternatives(self, parent: Track, frame: Frame) -> list[Alternative]:
+        """Re-injection's alternatives towards the bottom-up estimate (``bottomup.reinject``): for each of its two
+        poses, the turn about the parent's vertical that brings the parent's orientation nearest to it and the
+        depth scale to its depth (within 0.5-2), applied to the parent's recent path like every alternative.
+        None without an estimate."""
+        est = frame.posture
+        if est is None or not self.bottomup_settings.reinject or not self.reinjection_settings.every:
+            return []
+        rot = geometry.to_matrix(parent.pose[1])
+        depth = float(np.clip(est.position[2] / parent.pose[0][2], 0.5, 2.0))
+        out = []
+        for k, (mode, _) in enumerate(est.pose_modes()):
+            rel = rot.T @ mode
+            out.append(Alternative(f"bottomup{k}", turn=float(np.arctan2(rel[1, 0], rel[0, 0])), depth=depth))
         return out
 
     def manage(self, tracks: list[Track]) -> list[Track]:

@@ -24,6 +24,7 @@ from harness import geometry
 from harness.body.model import BodyModel
 from harness.body.surface import SurfacePoints
 from harness.body.tree import body_frames_into, frame_work, points_and_jacobians_into
+from harness.engine.bottom_up import fuse
 from harness.engine.config import RecoverySettings
 from harness.engine.features import ANGLE_RATES, ANGLES
 from harness.engine.likelihood import FlowModel, responsibilities
@@ -282,7 +283,8 @@ def mean_angles(model, best: np.ndarray, state_beliefs: np.ndarray) -> np.ndarra
 
 def recover(scorer: "Scorer", frame: "Frame", state_belief: np.ndarray, position: np.ndarray, rot: np.ndarray,
             position_std: np.ndarray, *, settings: RecoverySettings, refine: bool = True,
-            fix_pose: bool = False) -> Recovery:
+            fix_pose: bool = False, posture: tuple[np.ndarray, np.ndarray] | None = None,
+            posture_weight: float = 0.0) -> Recovery:
     """Angles of a recognised primitive and a refined pose, by EM against the frame's flows.
 
     ``state_belief`` ``(S,)`` over all database states (zero outside the recognised primitive). The prior is
@@ -292,6 +294,10 @@ def recover(scorer: "Scorer", frame: "Frame", state_belief: np.ndarray, position
     assigns flows to model points softly, first under the state belief, then at the current estimate (whose
     points only spread over their surface patch), with the likelihood's visibility and weights; the M-step is
     ``refine_pose``. Without flows, or with ``refine`` false, the prior mean at the given pose.
+
+    ``posture``: a posture independent of this pose (the bottom-up estimate's features ``(106,)`` and their std
+    ``(106,)``, ``bottom_up.PostureEstimate.posture_near``), fused with the belief's angles and rates
+    (``fuse``, its precision times ``posture_weight``) into the prior, when given.
     """
     model = scorer.model
     idx = np.flatnonzero(state_belief > 0)
@@ -305,6 +311,11 @@ def recover(scorer: "Scorer", frame: "Frame", state_belief: np.ndarray, position
     var = gamma @ (covars[:, ANGLES] + (angle_means - theta0) ** 2)
     rates = gamma @ rate_means
     rate_var = gamma @ (covars[:, ANGLE_RATES] + (rate_means - rates) ** 2)
+    if posture is not None and posture_weight > 0:
+        feats, feats_std = posture
+        theta0, var = fuse(theta0, var, feats[ANGLES], feats_std[ANGLES] ** 2, posture_weight)
+        rates, rate_var = fuse(rates, rate_var, feats[ANGLE_RATES], feats_std[ANGLE_RATES] ** 2, posture_weight)
+        current = Recovery(theta0, position, rot, refined=refine)
     prior = Prior(theta0, np.sqrt(var), position, position_std, rot, settings.rotation_std)
     mix = model.dists.mixture(state_belief)
     for it in range(settings.em_iterations):

@@ -16,13 +16,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness import geometry
+from harness.engine.bottom_up import fuse
 from harness.engine.config import BeliefSettings, LikelihoodSettings
 from harness.engine.frame import Frame, observation_frames
 from harness.engine.likelihood import (FlowModel, flow_log_likelihoods, responsibilities, tempered,
                                        velocity_log_likelihoods)
 from harness.engine.model import EngineModel
 from harness.engine.recognition import Recognizer
-from harness.engine.transform import ImageDistributions, PointDistributions, to_image
+from harness.engine.transform import (ImageDistributions, JointGaussians, PointDistributions,
+                                      state_point_distributions, to_image)
 from harness.observation import Observation
 
 
@@ -78,6 +80,23 @@ class Scorer:
         if frame.camera_height is None:
             return ll
         return ll + self.floor_log_prior(frame, _hypothesis_points(dists, state_index, len(ll)), quats, positions)
+
+    def posture_distributions(self, state_weights: np.ndarray, postures: list[tuple[np.ndarray, np.ndarray]],
+                              weight: float) -> PointDistributions:
+        """``J`` point distributions of beliefs fused with postures known independently of the pose: each belief
+        ``state_weights[j]`` ``(S,)`` as one joint-space Gaussian (its states' moments, ``db_means``,
+        ``db_covars``) times the posture's Gaussian (features ``(106,)`` and std ``(106,)``, the bottom-up
+        estimate's, its precision times ``weight``; ``recovery.fuse``), carried to the model points."""
+        model = self.model
+        w = np.asarray(state_weights, dtype=float)
+        w = w / w.sum(axis=1, keepdims=True)
+        mean = w @ model.db_means
+        var = np.einsum("js,jsd->jd", w, model.db_covars[None] + (model.db_means[None] - mean[:, None]) ** 2)
+        other = np.array([f for f, _ in postures])
+        other_var = np.array([sd for _, sd in postures]) ** 2
+        mean, var = fuse(mean, var, other, other_var, weight)
+        return state_point_distributions(model.body, JointGaussians.from_features(mean, var), model.points,
+                                         model.spread)
 
     def responsibilities(self, frame: Frame, img: ImageDistributions) -> np.ndarray:
         """``(M, P)`` soft assignment of the frame's flows to the model points of one hypothesis."""

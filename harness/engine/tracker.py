@@ -27,12 +27,14 @@ intrinsics, the optional camera motion and prior), the body model and the databa
 from __future__ import annotations
 
 import time
+from collections import deque
 from dataclasses import replace
 
 import numpy as np
 
 from harness import geometry
 from harness.body.model import BodyModel
+from harness.engine import bottom_up
 from harness.engine.backward import SettledStarts, both_passes, in_forward_time, settled_starts
 from harness.engine.config import TrackerConfig
 from harness.engine.database import MotionDatabase
@@ -82,6 +84,7 @@ class Tracker:
                                                                        config.model.seed)
         self.scorer = Scorer(self.model, config.likelihood)
         self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.bottom_up = bottom_up.load_model() if config.bottomup.enabled else None
 
     # --- one sequence ---------------------------------------------------------------------------
 
@@ -115,19 +118,24 @@ class Tracker:
         self._timing = dict.fromkeys(STAGES, 0.0)
         self._inputs: list[tuple] = []           # every frame's input, for the offline backward pass
         self._sequence = (intr, fps, camera_moves)
+        self._window: deque = deque(maxlen=bottom_up.WINDOW)      # the bottom-up estimate's window of flows
 
     def particle_tracks(self, rng: np.random.Generator, kind: type = ParticleTracks, **kw) -> ParticleTracks:
         """The engine's pose source (``kind``: ``ParticleTracks`` or a subclass, with its own ``kw``), handed the
         sections of its stages."""
         cfg = self.config
         return kind(self.scorer, rng, spawn=cfg.spawn, tracks=cfg.tracks, motion=cfg.motion,
-                    reinjection=cfg.reinjection, belief=cfg.belief, min_position_std=cfg.recovery.position_std, **kw)
+                    reinjection=cfg.reinjection, belief=cfg.belief, min_position_std=cfg.recovery.position_std,
+                    bottomup=cfg.bottomup, **kw)
 
     def step(self, flows: np.ndarray, camera_motion: np.ndarray | None = None, gravity: np.ndarray | None = None,
              camera_height: float | None = None) -> None:
         """One frame: flows ``(M, 4)``; the camera's own velocity ``(6,)``; the camera prior: gravity ``(3,)``
         (unit, camera frame) and the camera's height above the floor (m)."""
         frame = self._frames.next(flows, camera_motion, gravity, camera_height)
+        if self.bottom_up is not None:
+            self._window.append(frame.flows)
+            frame = replace(frame, posture=self.bottom_up.estimate(list(self._window), frame.intr, frame.fps))
         self._inputs.append((frame.flows, frame.camera_motion, frame.gravity, frame.camera_height))
         clock = _Clock(self._timing)
         if not self.tracks and not frame.has_flows:     # nothing to start from yet: the first estimate's frame
@@ -174,10 +182,14 @@ class Tracker:
         settings = self.config.recovery
         ranked = sorted(self.tracks, key=lambda t: -t.log_evidence)
         refined, rest = ranked[:settings.tracks], ranked[settings.tracks:]
+        weight = self.config.bottomup.recovery_weight
         for track in refined:
             pos, quat = track.pose
-            track.recovered(recover(self.scorer, frame, track.best_state_belief(), pos, geometry.to_matrix(quat),
-                                    np.maximum(track.pose_std, 1e-6), settings=settings, fix_pose=self.source.fixed))
+            rot = geometry.to_matrix(quat)
+            posture = frame.posture.posture_near(rot) if frame.posture is not None and weight > 0 else None
+            track.recovered(recover(self.scorer, frame, track.best_state_belief(), pos, rot,
+                                    np.maximum(track.pose_std, 1e-6), settings=settings, fix_pose=self.source.fixed,
+                                    posture=posture, posture_weight=weight))
         if rest:
             # The others' mean angles in one product: with dozens of tracks early on, a call each cost more.
             best, states = zip(*(t.best_states() for t in rest))
@@ -206,7 +218,9 @@ class Tracker:
         intr, fps, _ = self._sequence
         model = reversed_model(self.model)
         settings = self.config.offline
-        back = Tracker(model.db, model.body, replace(self.config, offline=replace(settings, backward_pass=False)),
+        # The bottom-up estimator learned forward time: the backward pass runs without it.
+        back = Tracker(model.db, model.body, replace(self.config, offline=replace(settings, backward_pass=False),
+                                                     bottomup=replace(self.config.bottomup, enabled=False)),
                        model=model)
         source = back.particle_tracks(self.source.rng, SettledStarts,
                                       starts=settled_starts(self.tracks, model.n_classes, settings.backward_live_only))

@@ -15,6 +15,8 @@ from it: adding a method is one registration here.
 - ``gt_base``: the engine handed the true baselink pose (isolates recognition and recovery from tracking);
 - ``no_database``: per-frame fitting of the angles to the 2D points at the true baselink pose, without the
   HMM prior (what the database's prior adds, compared with ``gt_base``); no recognition;
+- ``bottom_up``: the bottom-up posture estimator alone, frame by frame (``harness.engine.bottom_up``: base pose up to
+  the twin, angles), without recognition: what the learned part knows by itself;
 - ``joint_space``: forward recognition from the true joint-space features (the upper bound); no recovery;
 - ``reproduction`` (only when a scenario lists it): the ``full`` estimate, then the recognised primitive's
   reproduction along the recovered state path (``harness.engine.reproduction``), compared after dynamic time
@@ -42,8 +44,10 @@ from functools import cached_property
 
 import numpy as np
 
+from harness import geometry
 from harness.body import BodyModel, SurfacePoints, body_origins
 from harness.engine import Estimate, MotionDatabase, Tracker, TrackerConfig, motion_features, recognize_features
+from harness.engine.bottom_up import WINDOW
 from harness.engine.database import UNKNOWN
 from harness.engine.features import measured_features
 from harness.engine.recovery import fit_without_database
@@ -61,9 +65,12 @@ RECOGNITION_COLUMNS = ("class_pred", "correct", "frame_accuracy", "time_to_corre
                        "accuracy_curve", "confidence", "posterior_final", "p_unknown")
 RECOVERY_COLUMNS = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", "pa_mpjpe_mm",
                     "pa_mpjpe17_mm", "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m", "base_rot_err_deg",
-                    "heading_err_deg", "tilt_err_deg", "reproj_px", "heading_err_twin_deg", "heading_curve")
+                    "heading_err_deg", "tilt_err_deg", "reproj_px", "heading_err_twin_deg", "on_twin", "heading_curve")
 BASE_POSE_COLUMNS = ("base_pos_err_m", "base_depth_err_m", "base_rot_err_deg", "heading_err_deg", "tilt_err_deg",
-                     "heading_err_twin_deg", "heading_curve")
+                     "heading_err_twin_deg", "on_twin", "heading_curve")
+# A run settled on the twin (``on_twin``): its mean heading error beyond a quarter turn, and its error up to the
+# depth-reflected mirrored twin within 45 degrees (the rule of ``tables.heading_spread``).
+TWIN_RUN_DEG, TWIN_NEAR_DEG = 90.0, 45.0
 CURVE_POINTS = 10       # accuracy_curve, heading_curve: at 10 evenly spaced fractions of the clip
 STREAM_RECOGNITION_COLUMNS = STREAM_COLUMNS + ("segments_pred",)
 REPRODUCTION_COLUMNS = ("repro_dtw_deg", "repro_dtw_mm", "mean_dtw_deg", "mean_dtw_mm", "repro_beats_mean")
@@ -303,6 +310,7 @@ def recovery_scores(inputs: RunInputs, qpos_est: np.ndarray) -> dict:
     out |= metrics.base_errors(qpos_est[:, :3], qpos_est[:, 3:7], truth.base_pos_cam, truth.base_quat_cam)
     out |= metrics.heading_tilt_errors(qpos_est[:, 3:7], truth.base_quat_cam, truth.camera_rot)
     out |= metrics.heading_twin_error(qpos_est[:, 3:7], truth.base_quat_cam, truth.camera_rot)
+    out["on_twin"] = int(out["heading_err_deg"] > TWIN_RUN_DEG and out["heading_err_twin_deg"] <= TWIN_NEAR_DEG)
     out["heading_curve"] = metrics.heading_error_curve(qpos_est[:, 3:7], truth.base_quat_cam, truth.camera_rot,
                                                        CURVE_POINTS)
     return out
@@ -431,6 +439,26 @@ def _no_database(inputs: RunInputs, engine: EngineRuns) -> Estimate:
                                   spread=tracker.model.spread)
     qpos = metrics.camera_qpos(inputs.body, truth.base_pos_cam, truth.base_quat_cam, angles)
     return Estimate(np.asarray(inputs.classes), qpos=qpos)
+
+
+@method("bottom_up", recognises=False, recovers=True)
+def _bottom_up(inputs: RunInputs, engine: EngineRuns) -> Estimate | None:
+    """The bottom-up estimator alone, frame by frame (``harness.engine.bottom_up``): each frame's base pose and
+    angles from the window of flows ending there, the canonical member of the twin pair (it cannot tell the
+    two apart), no recognition; a frame without an estimate takes the nearest earlier one (the first one before
+    it)."""
+    from harness.engine.bottom_up import load_model
+
+    model, obs = load_model(), inputs.obs
+    est = [model.estimate(obs.flows[max(0, t - WINDOW + 1):t + 1], obs.intrinsics, obs.fps) for t in range(len(obs))]
+    seen = [e for e in est if e is not None]
+    if not seen:
+        return None
+    last, rows = seen[0], []
+    for e in est:
+        last = e if e is not None else last
+        rows.append(np.concatenate([last.position, geometry.from_matrix(last.rotation), last.features[:50]]))
+    return Estimate(np.asarray(inputs.classes), qpos=np.array(rows))
 
 
 @method("joint_space", recognises=True, recovers=False)

@@ -26,12 +26,12 @@ STREAM = ("edit_score", "f1_10", "f1_25", "f1_50", "boundary_delay_s")      # wi
 REPRODUCTION = ("repro_dtw_deg", "repro_dtw_mm", "mean_dtw_deg", "mean_dtw_mm", "repro_beats_mean")
 RECOVERY = ("angle_rms_deg", "mpjpe_pose_mm", "mpjpe_cam_mm", "mpjpe_cam17_mm", "pa_mpjpe_mm", "pa_mpjpe17_mm",
             "mpjpe_abs_mm", "base_pos_err_m", "base_depth_err_m", "base_rot_err_deg", "heading_err_deg",
-            "tilt_err_deg", "reproj_px", "heading_err_twin_deg")
+            "tilt_err_deg", "reproj_px", "heading_err_twin_deg", "on_twin")
 SCENE = ("self_occlusion", "obstacle_occlusion", "n_frames", "mean_flows")
 TIMING = ("ms_per_frame",)
 METRICS = RECOGNITION + STREAM + RECOVERY + REPRODUCTION + SCENE + TIMING
 HEADLINE = ("correct", "log_p_true", "mpjpe_cam_mm", "pa_mpjpe_mm", "mpjpe_pose_mm", "base_pos_err_m",
-            "heading_err_deg", "tilt_err_deg", "angle_rms_deg", "reproj_px")
+            "heading_err_deg", "heading_err_twin_deg", "on_twin", "tilt_err_deg", "angle_rms_deg", "reproj_px")
 STREAM_HEADLINE = ("frame_accuracy", "edit_score", "f1_10", "f1_25", "f1_50", "boundary_delay_s", "mpjpe_cam_mm",
                    "base_pos_err_m", "heading_err_deg")
 
