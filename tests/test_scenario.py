@@ -269,6 +269,10 @@ def test_every_swept_condition_is_validated_as_written_not_the_base():
         parse_scenario({"name": "c", "camera": {"elevation": 0}, "sweep": {"camera.distance": [4, 0.05]}}, "c.yaml")
     with pytest.raises(ScenarioError, match=r"sweep\['markers.count'\]\[1\]: at most 10000 markers"):
         parse_scenario({"name": "m", "sweep": {"markers.count": [10, 20000]}}, "m.yaml")
+    with pytest.raises(ScenarioError, match=r"v.yaml: camera.motion: observation.mode 'video' .* static camera "
+                                            r"\(condition camera.motion=orbit\)"):
+        parse_scenario({"name": "v", "observation": {"mode": "video"},
+                        "sweep": {"camera.motion": ["static", "orbit"]}}, "v.yaml")
 
 
 def test_yaml_anchors_and_merge_keys_still_work(tmp_path):

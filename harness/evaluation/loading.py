@@ -29,7 +29,7 @@ from harness import safe_yaml
 from harness.evaluation.limits import LimitError, check_run
 from harness.evaluation.external import versions
 from harness.evaluation.methods import MethodError, default_methods
-from harness.evaluation.scenario import MAX_RUNS, RANDOM, Scenario, ScenarioError, short, to_spec
+from harness.evaluation.scenario import MAX_RUNS, RANDOM, Scenario, ScenarioError, scene_spec, short, to_spec
 from harness.evaluation.sweep import Condition, apply, check_sweep_shape, conditions
 from harness.scene.spec import CameraSpec, OccluderSpec, SceneError, SubjectSpec
 
@@ -191,6 +191,17 @@ def _placement_error(cam: CameraSpec, occ: OccluderSpec, subject: SubjectSpec, e
     return None
 
 
+def _check_scene(cond: Condition, where: str) -> None:
+    """The rules between the scene's parts (``SceneSpec``), for each condition: a sweep may combine values that
+    each pass alone (``observation.mode: video`` with a swept ``camera.motion``). The per-run draws are
+    irrelevant to those rules, so any generator serves."""
+    try:
+        scene_spec(cond.config, np.random.default_rng(0))
+    except SceneError as exc:
+        label = "" if cond.label == "base" else f" (condition {cond.label})"
+        raise ScenarioError(f"{where}: {exc.key}: {exc.why}{label}") from None
+
+
 def _check_placement(cond: Condition, where: str) -> None:
     """Where the camera would stand, for every azimuth it can take, and whether an obstacle given by hand
     encloses the subject (decidable cases only; see ``harness.scene.placement``)."""
@@ -237,6 +248,7 @@ def parse_scenario(raw: Any, where: str = "<scenario>") -> Scenario:
     stamped: dict[str, str] = {}
     for cond in conds:
         stamped |= _check_methods(cond, where)
+        _check_scene(cond, where)
         _check_placement(cond, where)
         _check_limits(cond, where)
     return scenario.model_copy(update={"method_versions": dict(sorted(stamped.items()))}) if stamped else scenario
