@@ -170,19 +170,20 @@ def test_the_follower_gives_a_merged_blob_to_nobody_and_reidentifies_by_motion()
 
 # --- the command ----------------------------------------------------------------------------------------
 
-def _one_line_error(capsys) -> str:
+def _refusal(video, capsys, *flags) -> str:
+    """track-video on ``video`` must exit 2 with one line on stderr and write nothing; that line."""
+    out = video.parent / "out"
+    assert main(["track-video", str(video), "--out", str(out), "--quiet", *flags]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and "\n" not in err, err
+    assert not out.exists()
     return err
 
 
 def test_an_unreadable_file_is_one_line_and_writes_nothing(tmp_path, capsys):
     bad = tmp_path / "clip.avi"
     bad.write_text("not a video\n")
-    out = tmp_path / "out"
-    assert main(["track-video", str(bad), "--out", str(out), "--quiet"]) == 2
-    assert "cannot open" in _one_line_error(capsys)
-    assert not out.exists()
+    assert "cannot open" in _refusal(bad, capsys)
 
 
 def test_a_codec_opencv_cannot_decode_is_named(tmp_path, capsys):
@@ -190,28 +191,19 @@ def test_a_codec_opencv_cannot_decode_is_named(tmp_path, capsys):
     good = write_avi(tmp_path / "good.avi", frames, 10.0)
     bad = tmp_path / "bad.avi"
     bad.write_bytes(good.read_bytes().replace(b"MJPG", b"ZZZZ"))
-    out = tmp_path / "out"
-    assert main(["track-video", str(bad), "--out", str(out), "--quiet"]) == 2
-    assert "codec ZZZZ" in _one_line_error(capsys)
-    assert not out.exists()
+    assert "codec ZZZZ" in _refusal(bad, capsys)
 
 
 def test_a_clip_with_no_motion_is_one_line_and_writes_nothing(tmp_path, capsys):
     still = [_background(120, 160).astype(np.uint8)] * 40
     video = write_avi(tmp_path / "still.avi", still, 10.0)
-    out = tmp_path / "out"
-    assert main(["track-video", str(video), "--out", str(out), "--quiet", "--fov", "60"]) == 2
-    assert "no person found" in _one_line_error(capsys)
-    assert not out.exists()
+    assert "no person found" in _refusal(video, capsys, "--fov", "60")
 
 
 def test_a_clip_too_short_is_one_line_and_writes_nothing(tmp_path, capsys):
     frames, _ = patch_video(8)
     video = write_avi(tmp_path / "short.avi", frames, 10.0)
-    out = tmp_path / "out"
-    assert main(["track-video", str(video), "--out", str(out), "--quiet", "--fov", "60"]) == 2
-    assert "shorter than --min-seconds" in _one_line_error(capsys)
-    assert not out.exists()
+    assert "shorter than --min-seconds" in _refusal(video, capsys, "--fov", "60")
 
 
 @pytest.mark.parametrize("flags, words", [
@@ -221,10 +213,7 @@ def test_a_clip_too_short_is_one_line_and_writes_nothing(tmp_path, capsys):
 def test_bad_arguments_are_one_line_and_write_nothing(flags, words, tmp_path, capsys):
     frames, _ = patch_video(8)
     video = write_avi(tmp_path / "clip.avi", frames, 10.0)
-    out = tmp_path / "out"
-    assert main(["track-video", str(video), "--out", str(out), "--quiet", *flags]) == 2
-    assert words in _one_line_error(capsys)
-    assert not out.exists()
+    assert words in _refusal(video, capsys, *flags)
 
 
 @pytest.fixture(scope="module")
