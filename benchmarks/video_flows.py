@@ -92,7 +92,7 @@ def run_errors(run) -> dict:
 
 def main(argv=None) -> int:
     from harness.evaluation.runner import plan
-    from harness.evaluation.scenario import load_scenario
+    from harness.evaluation.loading import load_scenario
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="scenarios/video.yaml")
