@@ -180,3 +180,27 @@ def test_ground_height_ignores_a_single_dipping_frame(body):
                                atol=1e-9)
     assert ground_height(body, q, 30.0) == pytest.approx(0.03, abs=1e-9)
     assert ground_height(body, q, 30.0, percentile=0.0) == pytest.approx(-0.05, abs=1e-9)
+
+
+def test_a_point_on_another_mapped_point_gives_no_target(body, rng):
+    """An end site of zero length (Bandai's toe ends sit on the toe joints) has no direction: it is dropped, and
+    the toes keep the angle the joints give them (zero here) instead of folding to put the tip on the joint."""
+    from harness.motion.skeletons import SITES
+    from harness.motion.retarget import target_points
+
+    q = np.repeat(_pose(body, rng, 1), 2, axis=0)
+    q[:, 7:16] = 0.0
+    angles = body.angles(q)
+    toes = [body.angle_index(n) for n in ("ltoes_y", "rtoes_y")]
+    angles[:, toes] = 0.0
+    q = body.qpos(angles, q[:, :3], q[:, 3:7])
+    names = list(body.body_names[1:]) + ["ltoes_tip", "rtoes_tip"]
+    ids, local = target_points(body, names)
+    src = forward_points(body, q, ids, local)
+    for side in ("l", "r"):        # the tip's source point on the toe joint, as in Bandai's skeleton
+        src[:, names.index(f"{side}toes_tip")] = src[:, names.index(f"{side}toes")]
+    result = retarget(src, names, 30.0, up="z", fps_out=None, body=body, mapping={n: n for n in names},
+                      posture=0.0, level_floor=False)
+    assert "ltoes_tip" not in result.target_bodies and "rtoes_tip" not in result.target_bodies
+    assert len(result.target_bodies) == len(names) - 2 and set(SITES) & set(result.target_bodies) == set()
+    np.testing.assert_allclose(body.angles(result.qpos)[:, toes], 0.0, atol=1e-3)

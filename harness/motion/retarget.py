@@ -11,7 +11,8 @@ Steps (``retarget``):
    ``target_b = target_a + L_ab * unit(src_b - src_a)`` with ``L_ab`` the humanoid's own distance between
    the two joint centres (at the zero pose). A site (a body-fixed point, ``skeletons.SITES``) does the
    same from its own body's origin, or that body's nearest mapped ancestor: the toe tips so drive the
-   toe joints, which no joint centre below them could. Source and humanoid proportions differ (CMU's spine and neck split the trunk
+   toe joints, which no joint centre below them could. A mapped point that sits on another in every frame
+   (a BVH end site of zero length, as Bandai's toe ends) has no direction and is not a target (``_distinct``). Source and humanoid proportions differ (CMU's spine and neck split the trunk
    differently from humanoid56), so matching raw positions would leave centimetres of error that no pose
    can remove; matching directions keeps the pose and lets the humanoid's bone lengths stand. The hips
    are placed rigidly on the pelvis (``target_pelvis + R_base offset``), because the source's hip-joint
@@ -48,6 +49,8 @@ from harness.motion.ik import DEFAULT_DAMPING, DEFAULT_ITERATIONS, DEFAULT_POSTU
 from harness.motion.skeletons import SITES, resolve_correspondence
 
 REQUIRED_BODIES = ("pelvis", "lfemur", "rfemur")
+#: A mapped point this near (m) another mapped point in every frame has no direction of its own.
+COINCIDENT_M = 1e-3
 HEIGHT_CHAIN = ("lfoot", "ltibia", "lfemur", "pelvis", "lowerback", "upperback", "thorax", "lowerneck", "upperneck", "head")
 
 
@@ -209,6 +212,20 @@ def ground_height(body: BodyModel, qpos: np.ndarray, fps: float, percentile: flo
     return float(np.percentile(low[stance] if stance.any() else low, percentile))
 
 
+def _distinct(positions: np.ndarray, joint_names: list[str], correspondence: dict[str, str]) -> dict[str, str]:
+    """The correspondence without the points that sit on another mapped point in every frame (a BVH end site
+    of zero length, as Bandai's toe ends). A target takes its direction from the point it hangs off, and a
+    zero-length bone has none: its target would land on that point, and fitting it folds the bone between them
+    (Bandai's toes 0.9 rad down, its feet 0.4 rad up, whatever the motion). Sites are dropped before bodies."""
+    kept = dict(correspondence)
+    for joint in sorted(correspondence, key=lambda j: correspondence[j] not in SITES):
+        at = positions[:, joint_names.index(joint)]
+        if any(np.all(np.linalg.norm(at - positions[:, joint_names.index(other)], axis=-1) < COINCIDENT_M)
+               for other in kept if other != joint):
+            del kept[joint]
+    return kept
+
+
 def retarget(positions: np.ndarray, joint_names: tuple[str, ...] | list[str], fps: float, *,
              unit_m: float = 1.0, up: str = "y", fps_out: float | None = 30.0,
              mapping: dict[str, str | None] | None = None, body: BodyModel | None = None,
@@ -224,7 +241,8 @@ def retarget(positions: np.ndarray, joint_names: tuple[str, ...] | list[str], fp
         raise RetargetError(f"{where}: positions must be (T, {len(joint_names)}, 3), got {positions.shape}")
     if len(positions) < 2:
         raise RetargetError(f"{where}: needs at least 2 frames, got {len(positions)}")
-    correspondence = resolve_correspondence(joint_names, mapping, body.body_names, where)
+    correspondence = _distinct(positions, list(joint_names), resolve_correspondence(joint_names, mapping,
+                                                                                   body.body_names, where))
     missing = [b for b in REQUIRED_BODIES if b not in correspondence.values()]
     if missing:
         raise RetargetError(f"{where}: no source joint drives {', '.join(missing)} (needed for the base)")
