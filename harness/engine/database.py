@@ -258,7 +258,7 @@ class MotionDatabase:
                 db = cls(n_states=z["means"].shape[1] // ((2 if mirrored else 1) * len(sources)),
                          cyclic=[str(c) for c in z["cyclic"]], n_iter=int(z["n_iter"]), mirrored=mirrored,
                          floor=floor, background=bool(z["background"]) if "background" in z.files else False,
-                         by_source=len(sources) > 1 or sources != ("",))
+                         by_source=sources != ("",))
                 db.sources_ = sources
                 db.classes_ = z["classes"].astype(str)
                 db.cyclic_ = np.isin(db.classes_, list(db.cyclic))
